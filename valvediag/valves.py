@@ -1,0 +1,370 @@
+"""
+Control-valve models: controller output (OP) to valve stem position (MV).
+
+Each model is a pure function of the input sequence. Parameters may be scalars
+or arrays, one value per scenario, so that thousands of valves are computed in
+one call::
+
+    >>> import numpy as np
+    >>> from valvediag import valves
+    >>> op = np.r_[np.linspace(0, 10, 11), np.linspace(9, 0, 10)]
+    >>> valves.kano(op, S=4.0, J=2.0)            # one valve
+    >>> valves.kano(np.tile(op, (3, 1)), S=[2, 4, 6], J=[1, 2, 3])  # three
+
+All inputs and outputs are in the same unit, usually percent of valve travel.
+No clipping to 0-100 % is applied (some published code does that; real OP
+ranges differ). The valve starts at rest at ``x0`` (default: the first input
+value), centred in its dead band.
+
+The step functions (``_valve_step``) are shared with the closed-loop simulator
+in :mod:`valvediag.closedloop`, so open-loop and closed-loop results agree
+exactly.
+
+References
+----------
+.. [1] Kano, M., Maruta, H., Kugemoto, H., Shimizu, K. (2004). Practical model
+   and detection algorithm for valve stiction. IFAC DYCOPS 7, Boston.
+.. [2] Choudhury, M. A. A. S., Thornhill, N. F., Shah, S. L. (2005). Modelling
+   valve stiction. Control Engineering Practice 13, 641-658.
+.. [3] He, Q. P., Wang, J., Pottmann, M., Qin, S. J. (2007). A curve fitting
+   method for detecting valve stiction in oscillating control loops.
+   Ind. Eng. Chem. Res. 46, 4549-4560.
+.. [4] Fisher-Rosemount (1999). Control Valve Handbook. (Definitions of dead
+   band and backlash.)
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["linear", "backlash", "kano", "choudhury", "he", "VALVE_MODELS", "apply_valve"]
+
+# Model codes used inside the compiled kernels.
+LINEAR, BACKLASH, KANO, CHOUDHURY, HE = 0, 1, 2, 3, 4
+
+#: name -> (code, parameter names). Parameters are in the unit of the OP.
+VALVE_MODELS: dict[str, tuple[int, tuple[str, ...]]] = {
+    "linear": (LINEAR, ()),
+    "backlash": (BACKLASH, ("DB",)),
+    "kano": (KANO, ("S", "J")),
+    "choudhury": (CHOUDHURY, ("S", "J")),
+    "he": (HE, ("fs", "fd")),
+}
+
+# State vector layout (one row per valve).
+_X, _UPREV, _DIR, _STUCK, _USTUCK, _CAUSE = range(6)
+N_STATE = 6
+# Why a Kano/Choudhury valve is stuck: after a reversal, after the input came to
+# rest, or at the start of the record (centred in the band).
+_CAUSE_REVERSAL, _CAUSE_REST, _CAUSE_START = 1.0, 0.0, 2.0
+
+
+@numba.njit(cache=True, inline="always")
+def _valve_init(model, p0, p1, u0, x0, st):
+    """Put a valve at rest at position ``x0`` with input ``u0``."""
+    st[_X] = x0
+    st[_UPREV] = u0
+    st[_DIR] = 0.0
+    st[_STUCK] = 1.0
+    st[_USTUCK] = u0
+    st[_CAUSE] = _CAUSE_START
+    if model == HE:
+        # residual force, the "friction memory" of He et al.
+        st[_USTUCK] = 0.0
+
+
+@numba.njit(cache=True)
+def _valve_step(model, p0, p1, u, st):
+    """Advance one valve by one sample with input ``u``; return its position."""
+    if model == LINEAR:
+        st[_X] = u
+    elif model == BACKLASH:
+        half = 0.5 * p0
+        if u - st[_X] > half:
+            st[_X] = u - half
+        elif st[_X] - u > half:
+            st[_X] = u + half
+    elif model == KANO or model == CHOUDHURY:
+        S = p0
+        J = p1
+        du = u - st[_UPREV]
+        nd = 0.0
+        if du > 0.0:
+            nd = 1.0
+        elif du < 0.0:
+            nd = -1.0
+        if nd == 0.0:
+            # input at rest: a moving valve stops (no reversal)
+            if st[_STUCK] == 0.0:
+                st[_STUCK] = 1.0
+                st[_USTUCK] = st[_UPREV]
+                st[_CAUSE] = _CAUSE_REST
+        elif nd != st[_DIR]:
+            if st[_DIR] != 0.0:
+                # reversal: the valve sticks where the input turned
+                st[_STUCK] = 1.0
+                st[_USTUCK] = st[_UPREV]
+                st[_CAUSE] = _CAUSE_REVERSAL
+            st[_DIR] = nd
+        d = st[_DIR]
+        if st[_STUCK] == 1.0:
+            if d != 0.0:
+                cause = st[_CAUSE]
+                if cause == _CAUSE_START:
+                    thr = 0.5 * S
+                elif cause == _CAUSE_REVERSAL or model == CHOUDHURY:
+                    thr = S
+                else:
+                    thr = J
+                if d * (u - st[_USTUCK]) > thr:
+                    st[_X] = u - d * 0.5 * (S - J)
+                    st[_STUCK] = 0.0
+        else:
+            st[_X] = u - d * 0.5 * (S - J)
+        st[_UPREV] = u
+    elif model == HE:
+        fs = p0
+        fd = p1
+        temp = u - st[_UPREV] + st[_USTUCK]
+        if abs(temp) > fs:
+            ur = fd if temp > 0.0 else -fd
+            st[_USTUCK] = ur
+            st[_X] = u - ur
+        else:
+            st[_USTUCK] = temp
+        st[_UPREV] = u
+    return st[_X]
+
+
+@numba.njit(cache=True, parallel=True)
+def _run_open_loop(model, op, p0, p1, x0):
+    m, n = op.shape
+    out = np.empty_like(op)
+    for i in numba.prange(m):
+        st = np.empty(N_STATE)
+        _valve_init(model, p0[i], p1[i], op[i, 0], x0[i], st)
+        for k in range(n):
+            out[i, k] = _valve_step(model, p0[i], p1[i], op[i, k], st)
+    return out
+
+
+def apply_valve(model: str, op, x0=None, **params) -> np.ndarray:
+    """Apply a named valve model to one OP sequence or a batch of them.
+
+    Parameters
+    ----------
+    model : {'linear', 'backlash', 'kano', 'choudhury', 'he'}
+        Valve model name; see :data:`VALVE_MODELS` for its parameters.
+    op : array_like, shape (n,) or (m, n)
+        Controller output, one row per valve [OP unit, e.g. %].
+    x0 : float or array_like of shape (m,), optional
+        Initial valve position [OP unit]. Default: the first OP value.
+    **params : float or array_like of shape (m,)
+        The model's parameters [OP unit].
+
+    Returns
+    -------
+    numpy.ndarray
+        Valve position, same shape as ``op`` [OP unit].
+    """
+    try:
+        code, names = VALVE_MODELS[model]
+    except KeyError:
+        raise ValueError(f"unknown valve model {model!r}; choose from {sorted(VALVE_MODELS)}") from None
+    unknown = set(params) - set(names)
+    missing = set(names) - set(params)
+    if unknown or missing:
+        raise TypeError(f"valve model {model!r} takes parameters {names}; got {tuple(params)}")
+    u = np.asarray(op, dtype=float)
+    if u.ndim not in (1, 2) or u.shape[-1] == 0:
+        raise ValueError("op must be a non-empty 1-D or 2-D array (scenarios x samples)")
+    u2 = np.atleast_2d(u)
+    m = u2.shape[0]
+    vals = [np.broadcast_to(np.asarray(params[nm], dtype=float), (m,)) for nm in names]
+    for nm, v in zip(names, vals):
+        if np.any(~np.isfinite(v)) or np.any(v < 0):
+            raise ValueError(f"valve parameter {nm} must be finite and >= 0")
+    p0 = np.ascontiguousarray(vals[0]) if vals else np.zeros(m)
+    p1 = np.ascontiguousarray(vals[1]) if len(vals) > 1 else np.zeros(m)
+    start = u2[:, 0] if x0 is None else np.broadcast_to(np.asarray(x0, dtype=float), (m,))
+    out = _run_open_loop(code, np.ascontiguousarray(u2), p0, p1, np.ascontiguousarray(start, dtype=float))
+    return out[0] if u.ndim == 1 else out
+
+
+def linear(op, x0=None):
+    """Ideal valve: the position equals the controller output.
+
+    Parameters
+    ----------
+    op : array_like, shape (n,) or (m, n)
+        Controller output [%].
+    x0 : ignored
+        Accepted for a uniform signature.
+
+    Returns
+    -------
+    numpy.ndarray
+        Valve position [%], a copy of ``op``.
+    """
+    return apply_valve("linear", op)
+
+
+def backlash(op, DB, x0=None):
+    """Backlash (mechanical play) of total width ``DB``.
+
+    The valve follows the input at a distance ``DB/2`` while the input keeps
+    its direction. After a reversal it rests until the input has crossed the
+    whole band ``DB``, then follows again. There is no jump.
+
+    Parameters
+    ----------
+    op : array_like, shape (n,) or (m, n)
+        Controller output [%].
+    DB : float or array_like of shape (m,)
+        Dead band width [%], ``DB >= 0``.
+    x0 : float or array_like, optional
+        Initial position [%]; default ``op[..., 0]`` (centred in the band).
+
+    Returns
+    -------
+    numpy.ndarray
+        Valve position [%].
+
+    Notes
+    -----
+    Backlash is invertible: knowing ``DB``, a compensator can add ``DB/2``
+    in the direction of travel (Hägglund 2007). It is nested in the Kano model
+    (``J = 0``, ``S = DB``) for monotone input segments longer than ``DB``.
+
+    References
+    ----------
+    .. [1] Hägglund, T. (2007). Automatic on-line estimation of backlash in
+       control loops. Journal of Process Control 17, 489-499.
+    """
+    return apply_valve("backlash", op, x0=x0, DB=DB)
+
+
+def kano(op, S, J, x0=None):
+    """Kano et al. (2004) two-parameter stiction model.
+
+    The valve sticks when its input reverses or comes to rest (two equal
+    consecutive samples). After a reversal it slips once the input has moved
+    more than ``S`` from where it turned; after a rest, once it has moved more
+    than ``J``. On slipping it jumps to ``u - d (S - J)/2`` (``d`` the
+    direction of the input) and then follows the input at that distance.
+
+    Parameters
+    ----------
+    op : array_like, shape (n,) or (m, n)
+        Controller output [%].
+    S : float or array_like of shape (m,)
+        Dead band plus stick band [%].
+    J : float or array_like of shape (m,)
+        Slip jump [%].
+    x0 : float or array_like, optional
+        Initial position [%]; default ``op[..., 0]``. The valve starts at rest
+        and first breaks away when the input has moved ``S/2`` from its first
+        value (it is centred in its band).
+
+    Returns
+    -------
+    numpy.ndarray
+        Valve position [%].
+
+    Notes
+    -----
+    Pitfalls of the model on real data:
+
+    * a held or compressed OP sample counts as a rest, so historian
+      compression creates false stops (and false ``J`` jumps);
+    * noise on the OP creates false reversals;
+    * the apparent jump grows with the sample time: apply the model at the
+      native sampling rate, do not resample;
+    * the start of a record depends on the unknown initial state: discard data
+      up to the first reversal or fit the initial state.
+
+    ``J = 0`` gives a backlash of width ``S`` for monotone input segments
+    longer than ``S``.
+
+    References
+    ----------
+    .. [1] Kano, M., Maruta, H., Kugemoto, H., Shimizu, K. (2004). Practical
+       model and detection algorithm for valve stiction. IFAC DYCOPS 7.
+    """
+    return apply_valve("kano", op, x0=x0, S=S, J=J)
+
+
+def choudhury(op, S, J, x0=None):
+    """Choudhury et al. (2005) data-driven stiction model.
+
+    As :func:`kano`, except that a valve that came to rest without reversing
+    must again overcome the full band ``S`` before it moves (Kano et al. use
+    ``J`` there). The input is not clipped to 0-100 %.
+
+    Parameters
+    ----------
+    op : array_like, shape (n,) or (m, n)
+        Controller output [%].
+    S : float or array_like of shape (m,)
+        Dead band plus stick band [%].
+    J : float or array_like of shape (m,)
+        Slip jump [%].
+    x0 : float or array_like, optional
+        Initial position [%]; default ``op[..., 0]``.
+
+    Returns
+    -------
+    numpy.ndarray
+        Valve position [%].
+
+    Notes
+    -----
+    With a slowly varying input sampled finely, every held sample restarts the
+    stick band, so this model sticks much more than Kano's on held or
+    compressed data.
+
+    References
+    ----------
+    .. [1] Choudhury, M. A. A. S., Thornhill, N. F., Shah, S. L. (2005).
+       Modelling valve stiction. Control Engineering Practice 13, 641-658.
+    """
+    return apply_valve("choudhury", op, x0=x0, S=S, J=J)
+
+
+def he(op, fs, fd, x0=None):
+    """He et al. (2007) stiction model with static and kinetic friction.
+
+    A residual force accumulates the input changes. While its magnitude stays
+    within the static friction ``fs`` the valve does not move; once it exceeds
+    ``fs`` the valve moves and the residual drops to the kinetic friction
+    ``fd`` (with the sign of travel).
+
+    Parameters
+    ----------
+    op : array_like, shape (n,) or (m, n)
+        Controller output [%].
+    fs : float or array_like of shape (m,)
+        Static friction band [%], ``fs >= fd``.
+    fd : float or array_like of shape (m,)
+        Kinetic friction band [%].
+    x0 : float or array_like, optional
+        Initial position [%]; default ``op[..., 0]``.
+
+    Returns
+    -------
+    numpy.ndarray
+        Valve position [%].
+
+    Notes
+    -----
+    For reversals it behaves as Kano's model with ``S = fs + fd`` and
+    ``J = fs - fd``; it needs no rest detection, so held samples do not create
+    false stops.
+
+    References
+    ----------
+    .. [1] He, Q. P., Wang, J., Pottmann, M., Qin, S. J. (2007). A curve
+       fitting method for detecting valve stiction in oscillating control
+       loops. Ind. Eng. Chem. Res. 46, 4549-4560.
+    """
+    return apply_valve("he", op, x0=x0, fs=fs, fd=fd)
