@@ -1,0 +1,1 @@
+DELETE FROM episodes WHERE run_id = $run_id

@@ -1,0 +1,1 @@
+INSERT INTO episodes BY NAME SELECT * FROM incoming_episodes

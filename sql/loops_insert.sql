@@ -1,0 +1,1 @@
+INSERT INTO loops BY NAME SELECT * FROM incoming_loops

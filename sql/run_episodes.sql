@@ -1,0 +1,1 @@
+SELECT * FROM episodes WHERE run_id = $run_id ORDER BY loop, start_ts

@@ -1,0 +1,2 @@
+SELECT run_id, started_at, finished_at, status, window_start, window_end, exports, params
+FROM runs WHERE run_id = $run_id

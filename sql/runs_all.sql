@@ -1,0 +1,2 @@
+SELECT run_id, started_at, finished_at, status, window_start, window_end, exports, params
+FROM runs ORDER BY started_at, run_id

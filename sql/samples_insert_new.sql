@@ -1,0 +1,9 @@
+-- Insert the samples of `incoming_samples` whose (tag, ts) is not stored yet.
+INSERT INTO samples (tag, ts, value, status, source_file, source_line)
+SELECT i.tag, i.ts, i.value, i.status, i.source_file, i.source_line
+FROM incoming_samples AS i
+WHERE NOT EXISTS (
+    SELECT 1 FROM samples AS s
+    WHERE s.tag = i.tag AND s.ts = i.ts AND s.ts BETWEEN $ts_min AND $ts_max
+)
+ORDER BY i.tag, i.ts

@@ -1,0 +1,1 @@
+SELECT DISTINCT tag FROM samples ORDER BY tag

@@ -1,0 +1,983 @@
+"""
+Historian exports: readers and ingest into the store.
+
+A historian export is a CSV or Parquet file in one of two shapes:
+
+* **long**: one row per sample, ``tag,timestamp,value[,status]``;
+* **wide**: one row per time stamp, ``timestamp,TAG1,TAG2,...``.
+
+:func:`read_export` turns one file into a frame of samples (UTC time stamps,
+float values, the raw status or digital-state text) and a frame of quarantined
+rows, each with its file, line, raw text and the reason it could not be used.
+:func:`ingest_exports` reads many files, one at a time, and writes them to a
+:class:`~valvediag.store.Store` without ever duplicating a row.
+
+Rules that hold for every reader
+--------------------------------
+* Nothing is dropped silently. A sample is either stored, recognised as an
+  exact duplicate (counted), or quarantined with a reason.
+* A PI system digital state (``I/O Timeout``, ``Bad Input``, ...) or another
+  known state text (``MAN``/``AUTO``/``CAS``, ``ON``/``OFF``, ...) in the value
+  column is a sample with ``value = NULL`` and the text in ``status``. Any other
+  non-numeric text is quarantined. ``NaN``/``inf`` are kept as bad samples.
+* Status flags (``Questionable``, ``Substituted``, ``Annotated``, ...) are kept
+  as text in ``status`` beside a valid value. When a row has both a state and a
+  flag, ``status`` is ``"<state>; <flag>"``. A PHD ``confidence`` column is kept
+  as ``"confidence <n>"``; confidence -1 means no data, so its value is NULL.
+* ``value IS NULL`` therefore means exactly "this sample is bad".
+* Time stamps become UTC. ISO 8601 with an offset (``Z``, ``+01:00``,
+  ``+0100``, ``+01``) is exact; mixed offsets in one file are fine. Epoch
+  seconds are UTC. A naive local time stamp needs ``timezone``; one that falls
+  into a daylight-saving overlap (ambiguous) or gap (non-existent) is
+  quarantined, never guessed.
+* Rows whose time runs backwards are kept and sorted; the file's notes say
+  where (see :class:`ParsedExport`).
+* Within one file, exact duplicate samples are dropped and counted; a second
+  sample for the same (tag, time stamp) with a different value or status is
+  quarantined with the reason "duplicate timestamp with a different value".
+
+Notes
+-----
+* CSV is read line by line: a quoted field holding a line break is not
+  supported; each physical line of such a record is quarantined as malformed.
+* The CSV separator is sniffed from the header (``,``, ``;`` or tab). With
+  ``;`` or tab a decimal comma in values is accepted.
+* A file that is not valid UTF-8 is read as Latin-1 (lossless byte mapping) and
+  a note says so.
+* Time stamps are stored with microsecond resolution; finer digits are
+  truncated. Epoch numbers are seconds; a value above 1e11 (likely
+  milliseconds) is quarantined rather than guessed.
+* Blank lines carry no data and are skipped. In a wide file an empty cell (or
+  NaN/null in a wide Parquet file) means "no sample for this tag at this time"
+  and is skipped; in a long file an empty value is quarantined.
+* A file with no header at all is an error; a file with a header but no rows is
+  not (a note says it is empty).
+
+References
+----------
+.. [1] OSIsoft (2016). PI Server: System digital state set. PI Server
+   reference guide, "Digital states".
+.. [2] Honeywell (2012). Uniformance PHD: sample confidence (0-100, -1 = no
+   data).
+"""
+from __future__ import annotations
+
+import csv
+import glob
+import hashlib
+import os
+import zoneinfo
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import polars as pl
+
+__all__ = [
+    "DIGITAL_STATES",
+    "ExportError",
+    "ParsedExport",
+    "FileIngest",
+    "IngestReport",
+    "read_export",
+    "parse_export",
+    "expand_paths",
+    "file_sha256",
+    "ingest_exports",
+    "SAMPLE_SCHEMA",
+    "QUARANTINE_SCHEMA",
+]
+
+#: Known state texts (lower case). A value equal to one of them (ignoring case
+#: and surrounding blanks) is a bad/state sample, not garbage.
+DIGITAL_STATES: frozenset[str] = frozenset({
+    # PI system digital state set (the common ones)
+    "shutdown", "i/o timeout", "bad input", "bad output", "no data", "calc failed",
+    "comm fail", "pt created", "bad", "bad data", "bad quality", "configure",
+    "scan off", "scan on", "scan timeout", "doubtful", "wrong type", "over range",
+    "under range", "invalid data", "invalid float", "not connect", "out of serv",
+    "out of service", "set to bad", "equip fail", "unit down", "access denied",
+    "no result", "no sample", "failed", "error", "filtered", "intf shut",
+    "arc off-line", "isu saw no data", "over ucl", "under lcl", "over wl",
+    "under wl", "inp outrange", "out outrange", "trace", "coerced",
+    "future data unsupported", "manual",
+    # generic "no value" texts
+    "n/a", "null", "none",
+    # controller modes (a mode tag holds these)
+    "man", "auto", "automatic", "cas", "cascade", "rcas", "rout", "iman", "lo",
+    "oos", "o/s", "local", "remote", "trk", "track",
+    # two-state tags
+    "on", "off", "open", "closed", "true", "false", "run", "running", "stop",
+    "stopped",
+})
+
+SAMPLE_SCHEMA: dict[str, pl.DataType] = {
+    "tag": pl.String(),
+    "ts": pl.Datetime("us", "UTC"),
+    "value": pl.Float64(),
+    "status": pl.String(),
+    "source_file": pl.String(),
+    "source_line": pl.Int64(),
+}
+QUARANTINE_SCHEMA: dict[str, pl.DataType] = {
+    "source_file": pl.String(),
+    "line": pl.Int64(),
+    "raw": pl.String(),
+    "reason": pl.String(),
+}
+
+_TAG_NAMES = ("tag", "tagname", "tag_name", "tag name", "name", "point", "pointname",
+              "point_name")
+_TIME_NAMES = ("timestamp", "time", "ts", "datetime", "date_time", "date time",
+               "time_stamp", "date")
+_VALUE_NAMES = ("value", "val", "values")
+_STATUS_NAMES = ("status", "quality", "flag", "flags", "annotation")
+_CONFIDENCE_NAMES = ("confidence",)
+
+_EPOCH_MAX_S = 1e11  # above this an "epoch" number is probably milliseconds
+_PARQUET_SUFFIXES = (".parquet", ".pq", ".parq")
+_UNIT_SEP = "\x1f"  # the line reader splits on this byte; it never occurs in text
+
+DUPLICATE_REASON = "duplicate timestamp with a different value"
+
+
+class ExportError(ValueError):
+    """A whole export cannot be read. The message is one line naming the file."""
+
+
+# --------------------------------------------------------------------------
+# result objects
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ParsedExport:
+    """One export file, parsed.
+
+    Attributes
+    ----------
+    path : str
+        Absolute path of the file (as stored in ``source_file``).
+    shape : str
+        ``"long"`` or ``"wide"``.
+    samples : polars.DataFrame
+        :data:`SAMPLE_SCHEMA`, unique per (tag, ts), sorted by tag and ts.
+    quarantine : polars.DataFrame
+        :data:`QUARANTINE_SCHEMA`, one row per unusable line or cell.
+    duplicates_dropped : int
+        Exact duplicate samples within the file, dropped [rows].
+    backwards_rows : int
+        Rows whose time stamp is earlier than the previous row of the same tag
+        (in file order). They are kept and sorted [rows].
+    notes : tuple of str
+        One-line remarks naming the file (time running backwards, encoding,
+        empty file, ...).
+    """
+
+    path: str
+    shape: str
+    samples: pl.DataFrame
+    quarantine: pl.DataFrame
+    duplicates_dropped: int = 0
+    backwards_rows: int = 0
+    notes: tuple[str, ...] = ()
+    _raw_source: pl.DataFrame | None = field(default=None, repr=False, compare=False)
+
+    def raw_for(self, lines: Iterable[int]) -> pl.DataFrame:
+        """Return the raw text of some lines as a frame ``(line, raw)``.
+
+        Parameters
+        ----------
+        lines : iterable of int
+            Line numbers (CSV: 1-based physical line; Parquet: 1-based row + 1
+            for the notional header, i.e. the same numbering as CSV).
+        """
+        return _raw_lines(self._raw_source, pl.Series("line", list(lines), dtype=pl.Int64))
+
+
+@dataclass(frozen=True)
+class FileIngest:
+    """What happened to one file during :func:`ingest_exports`.
+
+    Attributes
+    ----------
+    path : str
+        Absolute path.
+    rows_read : int
+        Samples parsed from the file after in-file de-duplication [rows].
+    rows_inserted : int
+        New samples written to the store [rows].
+    rows_skipped_duplicate : int
+        Exact duplicates: within the file, or already in the store [rows].
+    rows_quarantined : int
+        Rows written to (or already in) the quarantine table [rows].
+    unchanged : bool
+        The file's SHA-256 was ingested before, so it was skipped.
+    error : str or None
+        One-line error when the file could not be read at all.
+    notes : tuple of str
+        One-line remarks (time running backwards, encoding, ...).
+    """
+
+    path: str
+    rows_read: int = 0
+    rows_inserted: int = 0
+    rows_skipped_duplicate: int = 0
+    rows_quarantined: int = 0
+    unchanged: bool = False
+    error: str | None = None
+    notes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class IngestReport:
+    """Summary of :func:`ingest_exports`.
+
+    Attributes
+    ----------
+    files : int
+        Files found (after glob expansion).
+    rows_inserted, rows_skipped_duplicate, rows_quarantined : int
+        Totals over the files [rows].
+    errors : tuple of str
+        One line per file that failed entirely, or per glob that matched
+        nothing. Each names the file.
+    notes : tuple of str
+        One-line remarks from the files.
+    per_file : tuple of FileIngest
+        The detail, in the order the files were processed.
+    """
+
+    files: int
+    rows_inserted: int
+    rows_skipped_duplicate: int
+    rows_quarantined: int
+    errors: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+    per_file: tuple[FileIngest, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        """True when no file failed."""
+        return not self.errors
+
+
+# --------------------------------------------------------------------------
+# layout detection
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Layout:
+    shape: str
+    time_col: str
+    tag_col: str | None = None
+    value_col: str | None = None
+    status_col: str | None = None
+    status_is_confidence: bool = False
+    tag_cols: tuple[str, ...] = ()
+
+
+def _norm(name: str) -> str:
+    return name.strip().strip('"').strip().lower()
+
+
+def _detect_layout(columns: Sequence[str], path: str) -> _Layout:
+    """Map the header to a long or wide layout or raise :class:`ExportError`."""
+    found = ", ".join(repr(c) for c in columns)
+    norm = [_norm(c) for c in columns]
+    blank = [i + 1 for i, n in enumerate(norm) if not n]
+    if blank:
+        raise ExportError(f"{path}: empty column name at position {blank[0]} (columns: {found})")
+    dupes = sorted({c for c in norm if norm.count(c) > 1})
+    if dupes:
+        raise ExportError(f"{path}: duplicate column names {dupes} (columns: {found})")
+
+    def pick(names: tuple[str, ...]) -> str | None:
+        hits = [c for c, n in zip(columns, norm) if n in names]
+        if len(hits) > 1:
+            raise ExportError(f"{path}: more than one column could be the "
+                              f"{names[0]} column: {hits} (columns: {found})")
+        return hits[0] if hits else None
+
+    time_col = pick(_TIME_NAMES)
+    tag_col = pick(_TAG_NAMES)
+    if time_col is None:
+        raise ExportError(f"{path}: no time stamp column (expected one of "
+                          f"{'/'.join(_TIME_NAMES[:4])}); columns found: {found}")
+    if tag_col is not None:
+        value_col = pick(_VALUE_NAMES)
+        status_col = pick(_STATUS_NAMES)
+        conf_col = pick(_CONFIDENCE_NAMES)
+        if value_col is None:
+            raise ExportError(f"{path}: long export without a value column; columns found: {found}")
+        if status_col and conf_col:
+            raise ExportError(f"{path}: both a status and a confidence column; columns found: {found}")
+        known = {time_col, tag_col, value_col, status_col, conf_col}
+        unknown = [c for c in columns if c not in known]
+        if unknown:
+            raise ExportError(f"{path}: unknown columns {unknown} in a long export "
+                              f"(tag,timestamp,value[,status]); columns found: {found}")
+        return _Layout("long", time_col, tag_col, value_col, status_col or conf_col,
+                       conf_col is not None)
+    tag_cols = tuple(c for c in columns if c != time_col)
+    if not tag_cols:
+        raise ExportError(f"{path}: only a time stamp column, no tag or value columns; "
+                          f"columns found: {found}")
+    clash = [c for c in tag_cols if _norm(c) in _VALUE_NAMES + _STATUS_NAMES + _CONFIDENCE_NAMES]
+    if clash:
+        raise ExportError(f"{path}: columns {clash} look like a long export but there is no "
+                          f"tag column; columns found: {found}")
+    return _Layout("wide", time_col, tag_cols=tag_cols)
+
+
+# --------------------------------------------------------------------------
+# time stamps
+# --------------------------------------------------------------------------
+_OFFSET_FORMATS = ("%Y-%m-%dT%H:%M:%S%.f%z", "%Y-%m-%d %H:%M:%S%.f%z",
+                   "%Y-%m-%dT%H:%M%z", "%Y-%m-%dT%H:%M:%S%#z")
+_NAIVE_FORMATS = ("%Y-%m-%dT%H:%M:%S%.f", "%Y-%m-%d %H:%M:%S%.f", "%Y-%m-%dT%H:%M",
+                  "%Y-%m-%d %H:%M", "%d-%b-%Y %H:%M:%S%.f", "%d-%b-%y %H:%M:%S%.f")
+_EPOCH_RE = r"^[+-]?\d+(\.\d*)?$"
+
+
+def _check_timezone(timezone: str | None) -> None:
+    if timezone is None:
+        return
+    try:
+        zoneinfo.ZoneInfo(timezone)
+    except (zoneinfo.ZoneInfoNotFoundError, ValueError):
+        raise ValueError(f"unknown IANA time zone {timezone!r} (e.g. 'Europe/Berlin')") from None
+
+
+def _try_formats(text: pl.Series, formats: tuple[str, ...], tz: str | None) -> pl.Series:
+    """Parse with the first format that works per value; null where none does."""
+    out = pl.Series("ts", [None] * len(text), dtype=pl.Datetime("us", tz))
+    for fmt in formats:
+        todo = out.is_null() & text.is_not_null()
+        if not todo.any():
+            break
+        parsed = text.str.to_datetime(fmt, strict=False, time_unit="us", time_zone=tz)
+        out = pl.select(pl.coalesce(out, parsed)).to_series()
+    return out
+
+
+def _parse_time_text(text: pl.Series) -> pl.DataFrame:
+    """Parse distinct time stamp texts.
+
+    Returns a frame ``(text, utc, naive, kind)`` with ``kind`` in
+    ``offset``/``epoch``/``naive``/null (unparseable).
+    """
+    u = text.unique().drop_nulls()
+    s = u.str.strip_chars()
+    # "Z"/"UTC" suffix -> +00:00; a blank before the offset; decimal comma in seconds
+    s = (s.str.replace(r"(?i)\s*(Z|UTC)$", "+00:00")
+          .str.replace(r"\s+([+-]\d{2}(:?\d{2})?)$", "$1")
+          .str.replace(r"(:\d{2}),(\d+)", "$1.$2"))
+    has_offset = s.str.contains(r"[T ]\d{2}:\d{2}(:\d{2}(\.\d+)?)?[+-]\d{2}(:?\d{2})?$")
+    utc = _try_formats(s.filter(has_offset), _OFFSET_FORMATS, "UTC")
+    naive = _try_formats(s.filter(~has_offset), _NAIVE_FORMATS, None)
+    frame_off = pl.DataFrame({"text": u.filter(has_offset), "utc": utc,
+                              "naive": pl.Series([None] * len(utc), dtype=pl.Datetime("us"))})
+    frame_nv = pl.DataFrame({"text": u.filter(~has_offset), "s": s.filter(~has_offset),
+                             "naive": naive})
+    frame_nv = frame_nv.with_columns(
+        epoch=pl.when(pl.col("s").str.contains(_EPOCH_RE))
+        .then(pl.col("s").cast(pl.Float64, strict=False)))
+    frame_nv = frame_nv.with_columns(
+        utc=pl.when(pl.col("epoch").abs() < _EPOCH_MAX_S)
+        .then((pl.col("epoch") * 1e6).round().cast(pl.Int64).cast(pl.Datetime("us", "UTC"))),
+        kind=pl.when(pl.col("epoch").is_not_null()).then(pl.lit("epoch"))
+        .when(pl.col("naive").is_not_null()).then(pl.lit("naive")),
+    )
+    frame_off = frame_off.with_columns(
+        kind=pl.when(pl.col("utc").is_not_null()).then(pl.lit("offset")), epoch=pl.lit(None, pl.Float64))
+    cols = ["text", "utc", "naive", "kind", "epoch"]
+    return pl.concat([frame_off.select(cols), frame_nv.select(cols)])
+
+
+def _localise(naive: pl.Expr, timezone: str) -> tuple[pl.Expr, pl.Expr]:
+    """UTC time and a reason for naive local times in ``timezone``."""
+    strict = naive.dt.replace_time_zone(timezone, ambiguous="null", non_existent="null")
+    early = naive.dt.replace_time_zone(timezone, ambiguous="earliest", non_existent="null")
+    reason = (pl.when(naive.is_not_null() & early.is_null())
+              .then(pl.lit(f"non-existent local time (daylight-saving gap in {timezone})"))
+              .when(naive.is_not_null() & strict.is_null())
+              .then(pl.lit(f"ambiguous local time (daylight-saving overlap in {timezone})")))
+    return strict.dt.convert_time_zone("UTC"), reason
+
+
+def _resolve_times(frame: pl.DataFrame, col: str, timezone: str | None, path: str
+                   ) -> pl.DataFrame:
+    """Add ``ts`` (UTC) and ``ts_reason`` for the time column ``col`` of ``frame``.
+
+    ``col`` may be text, a datetime (naive or aware) or a number (epoch s).
+    """
+    dtype = frame.schema[col]
+    if dtype == pl.String:
+        parsed = _parse_time_text(frame[col])
+        frame = frame.join(parsed.rename({"text": col}), on=col, how="left",
+                           maintain_order="left")
+        text_reason = (pl.when(pl.col(col).is_null() | (pl.col(col).str.strip_chars() == ""))
+                       .then(pl.lit("empty timestamp"))
+                       .when(pl.col("epoch").abs() >= _EPOCH_MAX_S)
+                       .then(pl.format("epoch value {} is too large for seconds "
+                                       "(milliseconds?)", pl.col(col)))
+                       .when(pl.col("kind").is_null())
+                       .then(pl.format("unparseable timestamp '{}'", pl.col(col))))
+        frame = frame.with_columns(ts_reason=text_reason).drop("epoch")
+    elif isinstance(dtype, pl.Datetime):
+        if dtype.time_zone is None:
+            frame = frame.with_columns(utc=pl.lit(None, pl.Datetime("us", "UTC")),
+                                       naive=pl.col(col).cast(pl.Datetime("us")),
+                                       kind=pl.lit("naive"))
+        else:
+            frame = frame.with_columns(
+                utc=pl.col(col).dt.convert_time_zone("UTC").cast(pl.Datetime("us", "UTC")),
+                naive=pl.lit(None, pl.Datetime("us")), kind=pl.lit("offset"))
+        frame = frame.with_columns(
+            ts_reason=pl.when(pl.col(col).is_null()).then(pl.lit("empty timestamp")),
+            kind=pl.when(pl.col(col).is_not_null()).then(pl.col("kind")))
+    elif dtype == pl.Date:
+        return _resolve_times(frame.with_columns(pl.col(col).cast(pl.Datetime("us"))),
+                              col, timezone, path)
+    elif dtype.is_numeric():
+        sec = pl.col(col).cast(pl.Float64)
+        frame = frame.with_columns(
+            utc=pl.when(sec.abs() < _EPOCH_MAX_S)
+            .then((sec * 1e6).round().cast(pl.Int64).cast(pl.Datetime("us", "UTC"))),
+            naive=pl.lit(None, pl.Datetime("us")),
+            kind=pl.when(sec.is_finite() & (sec.abs() < _EPOCH_MAX_S)).then(pl.lit("epoch")),
+            ts_reason=pl.when(sec.is_null()).then(pl.lit("empty timestamp"))
+            .when(~sec.is_finite()).then(pl.format("unparseable timestamp '{}'", sec))
+            .when(sec.abs() >= _EPOCH_MAX_S)
+            .then(pl.format("epoch value {} is too large for seconds (milliseconds?)", sec)),
+        )
+    else:
+        raise ExportError(f"{path}: time column {col!r} has type {dtype}, not text, "
+                          f"datetime or epoch seconds")
+
+    kinds = set(frame["kind"].drop_nulls().unique().to_list())
+    if "naive" in kinds:
+        if timezone is not None:
+            local_utc, local_reason = _localise(pl.col("naive"), timezone)
+            frame = frame.with_columns(
+                utc=pl.when(pl.col("kind") == "naive").then(local_utc).otherwise(pl.col("utc")),
+                ts_reason=pl.coalesce(pl.col("ts_reason"), local_reason))
+        elif kinds == {"naive"}:
+            raise ExportError(f"{path}: time stamps carry no UTC offset and no time zone is "
+                              f"configured; give the plant's IANA time zone "
+                              f"(e.g. timezone='Europe/Berlin')")
+        else:
+            frame = frame.with_columns(ts_reason=pl.coalesce(
+                pl.col("ts_reason"),
+                pl.when(pl.col("kind") == "naive").then(pl.lit(
+                    "timestamp has no UTC offset and no time zone is configured "
+                    "(the file mixes naive and offset time stamps)"))))
+    return frame.rename({"utc": "ts"}).drop("naive", "kind")
+
+
+# --------------------------------------------------------------------------
+# values
+# --------------------------------------------------------------------------
+def _parse_values(text: pl.Expr, states: frozenset[str], decimal_comma: bool
+                  ) -> tuple[pl.Expr, pl.Expr, pl.Expr]:
+    """(value, state text, reason) for a text value column."""
+    t = text.str.strip_chars()
+    num_text = t.str.replace(",", ".", literal=True) if decimal_comma else t
+    num = num_text.cast(pl.Float64, strict=False)
+    is_state = t.str.to_lowercase().str.replace_all(r"\s+", " ").is_in(list(states))
+    value = pl.when(num.is_finite()).then(num)
+    state = (pl.when(num.is_not_null() & ~num.is_finite()).then(t)
+             .when(num.is_null() & is_state).then(t))
+    reason = (pl.when(t.is_null() | (t == "")).then(pl.lit("empty value"))
+              .when(num.is_null() & ~is_state)
+              .then(pl.format("non-numeric value '{}'", t)))
+    return value, state, reason
+
+
+def _numeric_values(col: pl.Expr) -> tuple[pl.Expr, pl.Expr, pl.Expr]:
+    """(value, state text, reason) for a numeric value column (Parquet)."""
+    num = col.cast(pl.Float64)
+    value = pl.when(num.is_finite()).then(num)
+    state = pl.when(num.is_not_null() & ~num.is_finite()).then(num.cast(pl.String))
+    reason = pl.when(num.is_null()).then(pl.lit("empty value"))
+    return value, state, reason
+
+
+def _value_exprs(dtype: pl.DataType, col: str, states: frozenset[str], decimal_comma: bool):
+    if dtype == pl.String:
+        return _parse_values(pl.col(col), states, decimal_comma)
+    if dtype.is_numeric() or dtype == pl.Boolean:
+        return _numeric_values(pl.col(col))
+    return _parse_values(pl.col(col).cast(pl.String), states, decimal_comma)
+
+
+# --------------------------------------------------------------------------
+# reading files into a frame of fields
+# --------------------------------------------------------------------------
+def _read_csv_lines(path: str) -> tuple[pl.DataFrame, list[str]]:
+    """All physical lines of a text file as ``(line, raw)``; blank lines dropped."""
+    data = Path(path).read_bytes()
+    notes = []
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        data = data.decode("latin-1").encode("utf-8")
+        notes.append(f"{path}: not valid UTF-8; read as Latin-1")
+    if _UNIT_SEP.encode() in data:
+        data = data.replace(_UNIT_SEP.encode(), "\u241f".encode())
+        notes.append(f"{path}: control character 0x1F replaced by U+241F")
+    if not data.strip():
+        raise ExportError(f"{path}: empty file (no header, no rows)")
+    lines = pl.read_csv(data, has_header=False, separator=_UNIT_SEP, quote_char=None,
+                        schema={"raw": pl.String}, skip_lines=0)
+    lines = lines.with_row_index("line", offset=1).with_columns(pl.col("line").cast(pl.Int64))
+    lines = lines.filter(pl.col("raw").is_not_null() & (pl.col("raw").str.strip_chars() != ""))
+    return lines, notes
+
+
+def _sniff_separator(header: str) -> str:
+    counts = {sep: header.count(sep) for sep in (",", ";", "\t")}
+    best = max(counts, key=counts.get)
+    return best if counts[best] else ","
+
+
+def _split_fields(rows: pl.DataFrame, n: int, sep: str) -> tuple[pl.DataFrame, pl.DataFrame]:
+    """Split ``(line, raw)`` rows into ``f0..f{n-1}``; wrong field counts go aside."""
+    names = [f"f{i}" for i in range(n)]
+    quoted = pl.col("raw").str.contains('"', literal=True)
+    plain = rows.filter(~quoted).with_columns(pl.col("raw").str.split(sep).alias("_f"))
+    plain = plain.with_columns(_n=pl.col("_f").list.len())
+    good = plain.filter(pl.col("_n") == n).select(
+        "line", "raw", *[pl.col("_f").list.get(i).str.strip_chars().alias(c)
+                         for i, c in enumerate(names)])
+    bad = plain.filter(pl.col("_n") != n).select(
+        "line", "raw", reason=pl.format("malformed line: expected {} fields, found {}",
+                                        pl.lit(n), pl.col("_n")))
+    q = rows.filter(quoted)
+    if q.height:
+        parsed_ok, parsed_bad = [], []
+        for line, raw in q.iter_rows():
+            fields = next(csv.reader([raw], delimiter=sep), [])
+            if len(fields) == n:
+                parsed_ok.append((line, raw, *[f.strip() for f in fields]))
+            else:
+                parsed_bad.append((line, raw, f"malformed line: expected {n} fields, "
+                                              f"found {len(fields)}"))
+        good = pl.concat([good, pl.DataFrame(parsed_ok, schema=good.schema, orient="row")])
+        bad = pl.concat([bad, pl.DataFrame(parsed_bad, schema=bad.schema, orient="row")])
+    good = good.with_columns([pl.when(pl.col(c) != "").then(pl.col(c)).alias(c) for c in names])
+    return good, bad
+
+
+# --------------------------------------------------------------------------
+# long / wide normalisation
+# --------------------------------------------------------------------------
+def _empty_quarantine() -> pl.DataFrame:
+    return pl.DataFrame(schema=QUARANTINE_SCHEMA)
+
+
+def _long_samples(frame: pl.DataFrame, lay: _Layout, path: str, timezone: str | None,
+                  states: frozenset[str], decimal_comma: bool
+                  ) -> tuple[pl.DataFrame, pl.DataFrame]:
+    """``frame`` has ``line``, the layout's columns (renamed) and maybe ``raw``."""
+    frame = _resolve_times(frame, "time", timezone, path)
+    value, state, vreason = _value_exprs(frame.schema["value"], "value", states, decimal_comma)
+    if lay.status_col is None:
+        flag = pl.lit(None, pl.String)
+    else:
+        flag = pl.col("status").cast(pl.String).str.strip_chars()
+        flag = pl.when(flag != "").then(flag)
+    if lay.status_is_confidence:
+        conf = flag.cast(pl.Float64, strict=False)
+        value = pl.when(conf == -1).then(None).otherwise(value)
+        flag = pl.when(flag.is_not_null()).then(pl.format("confidence {}", flag))
+        vreason = pl.when(conf == -1).then(None).otherwise(vreason)
+    tag = pl.col("tag").cast(pl.String).str.strip_chars()
+    frame = frame.with_columns(
+        tag=tag, value=value,
+        status=pl.concat_str([state, flag], separator="; ", ignore_nulls=True),
+        reason=pl.coalesce(pl.when(tag.is_null() | (tag == "")).then(pl.lit("empty tag")),
+                           pl.col("ts_reason"), vreason),
+    ).with_columns(status=pl.when(pl.col("status") != "").then(pl.col("status")))
+    bad = frame.filter(pl.col("reason").is_not_null()).select("line", "reason")
+    good = frame.filter(pl.col("reason").is_null()).select(
+        "tag", "ts", "value", "status", source_file=pl.lit(path), source_line=pl.col("line"))
+    return good, bad
+
+
+def _wide_samples(frame: pl.DataFrame, lay: _Layout, path: str, timezone: str | None,
+                  states: frozenset[str], decimal_comma: bool
+                  ) -> tuple[pl.DataFrame, pl.DataFrame]:
+    """``frame`` has ``line``, ``time`` and one column per tag."""
+    frame = _resolve_times(frame.select("line", "time", *lay.tag_cols), "time", timezone, path)
+    bad_rows = frame.filter(pl.col("ts_reason").is_not_null()).select(
+        "line", reason=pl.col("ts_reason"))
+    frame = frame.filter(pl.col("ts_reason").is_null()).drop("ts_reason", "time")
+    parts, bad_cells = [], [bad_rows]
+    numeric = [c for c in lay.tag_cols if frame.schema[c].is_numeric()]
+    texty = [c for c in lay.tag_cols if c not in numeric]
+    if numeric:
+        long = frame.unpivot(numeric, index=["line", "ts"], variable_name="tag",
+                             value_name="v").with_columns(pl.col("v").cast(pl.Float64))
+        # NaN / null in a wide numeric column = no sample at this time stamp
+        long = long.filter(pl.col("v").is_not_null() & ~pl.col("v").is_nan())
+        parts.append(long.select("line", "ts", "tag", value="v",
+                                 status=pl.lit(None, pl.String)))
+    if texty:
+        long = frame.select("line", "ts", *[pl.col(c).cast(pl.String) for c in texty]).unpivot(
+            texty, index=["line", "ts"], variable_name="tag", value_name="v")
+        long = long.filter(pl.col("v").is_not_null() & (pl.col("v").str.strip_chars() != ""))
+        value, state, vreason = _parse_values(pl.col("v"), states, decimal_comma)
+        long = long.with_columns(value=value, status=state, reason=vreason)
+        bad_cells.append(long.filter(pl.col("reason").is_not_null()).select(
+            "line", reason=pl.format("{} (tag {})", pl.col("reason"), pl.col("tag"))))
+        parts.append(long.filter(pl.col("reason").is_null()).select(
+            "line", "ts", "tag", "value", "status"))
+    good = pl.concat(parts) if parts else pl.DataFrame(
+        schema={"line": pl.Int64, "ts": pl.Datetime("us", "UTC"), "tag": pl.String,
+                "value": pl.Float64, "status": pl.String})
+    good = good.select(pl.col("tag").str.strip_chars(), "ts", "value", "status",
+                       source_file=pl.lit(path), source_line=pl.col("line"))
+    return good, pl.concat(bad_cells)
+
+
+# --------------------------------------------------------------------------
+# in-file checks
+# --------------------------------------------------------------------------
+def _count_backwards(samples: pl.DataFrame) -> tuple[int, str | None]:
+    """Rows whose time is earlier than the previous row of the same tag (file order)."""
+    if samples.is_empty():
+        return 0, None
+    back = samples.sort("source_line").with_columns(
+        _back=(pl.col("ts").diff().over("tag") < pl.duration(microseconds=0)))
+    hit = back.filter(pl.col("_back"))
+    if hit.is_empty():
+        return 0, None
+    first = hit.row(0, named=True)
+    return hit.height, f"tag {first['tag']} at line {first['source_line']}"
+
+
+def _dedupe(samples: pl.DataFrame) -> tuple[pl.DataFrame, int, pl.DataFrame]:
+    """Drop exact duplicates; set aside same-key rows with a different value.
+
+    Returns (unique samples sorted by tag/ts, exact duplicates dropped,
+    conflicts ``(line, reason)``).
+    """
+    s = samples.sort("tag", "ts", "source_line")
+    exact = pl.struct("tag", "ts", "value", "status").is_first_distinct()
+    n0 = s.height
+    s = s.filter(exact)
+    dropped = n0 - s.height
+    first_of_key = pl.struct("tag", "ts").is_first_distinct()
+    s = s.with_columns(_first=first_of_key,
+                       _kept=pl.col("source_line").first().over("tag", "ts"))
+    conflicts = s.filter(~pl.col("_first")).select(
+        line=pl.col("source_line"),
+        reason=pl.format(DUPLICATE_REASON + " (tag {}; kept line {})", pl.col("tag"),
+                         pl.col("_kept")))
+    return s.filter(pl.col("_first")).drop("_first", "_kept"), dropped, conflicts
+
+
+# --------------------------------------------------------------------------
+# public readers
+# --------------------------------------------------------------------------
+def parse_export(path: str | os.PathLike, *, timezone: str | None = None,
+                 states: Iterable[str] | None = None) -> ParsedExport:
+    """Parse one historian export (CSV or Parquet, long or wide).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The export. ``.parquet``/``.pq``/``.parq`` is Parquet, anything else
+        is read as delimited text.
+    timezone : str, optional
+        IANA time zone of naive local time stamps (e.g. ``"Europe/Berlin"``).
+        Time stamps with an offset or epoch seconds ignore it.
+    states : iterable of str, optional
+        State texts accepted as bad samples (case-insensitive). Default
+        :data:`DIGITAL_STATES`.
+
+    Returns
+    -------
+    ParsedExport
+
+    Raises
+    ------
+    ExportError
+        The file cannot be used at all (missing, empty, unknown column layout,
+        naive time stamps without a time zone). The message is one line that
+        names the file.
+    ValueError
+        ``timezone`` is not a known IANA zone.
+    """
+    _check_timezone(timezone)
+    path = os.path.abspath(os.fspath(path))
+    state_set = frozenset(s.strip().lower() for s in (DIGITAL_STATES if states is None else states))
+    if not os.path.isfile(path):
+        raise ExportError(f"{path}: no such file")
+    if path.lower().endswith(_PARQUET_SUFFIXES):
+        return _parse_parquet(path, timezone, state_set)
+    return _parse_csv(path, timezone, state_set)
+
+
+def _finish(path: str, shape: str, good: pl.DataFrame, bad: list[pl.DataFrame],
+            raw_source: pl.DataFrame, notes: list[str]) -> ParsedExport:
+    good = good.cast(SAMPLE_SCHEMA)
+    n_back, where = _count_backwards(good)
+    if n_back:
+        notes.append(f"{path}: time runs backwards at {n_back} rows (first: {where}); "
+                     f"rows were sorted by time")
+    samples, dropped, conflicts = _dedupe(good)
+    bad_lines = pl.concat([b.select(pl.col("line").cast(pl.Int64), "reason") for b in bad]
+                          + [conflicts])
+    raw = bad_lines.join(_raw_lines(raw_source, bad_lines["line"]), on="line", how="left")
+    quarantine = raw.select(source_file=pl.lit(path), line="line", raw="raw",
+                            reason="reason").cast(QUARANTINE_SCHEMA).sort("line", "reason")
+    if samples.is_empty() and quarantine.is_empty():
+        notes.append(f"{path}: header only, no data rows")
+    return ParsedExport(path, shape, samples, quarantine, dropped, n_back, tuple(notes),
+                        raw_source)
+
+
+def _raw_lines(source: pl.DataFrame | None, lines: pl.Series) -> pl.DataFrame:
+    """Raw text of ``lines`` from a ``(line, raw)`` frame or a Parquet row frame."""
+    lines = lines.cast(pl.Int64).unique()
+    if source is None or lines.is_empty():
+        return pl.DataFrame({"line": lines, "raw": pl.Series([None] * len(lines), dtype=pl.String)})
+    hit = source.filter(pl.col("line").is_in(lines.implode()))
+    if "raw" not in hit.columns:  # Parquet: render the row as CSV-like text
+        cols = [c for c in hit.columns if c != "line"]
+        hit = hit.select("line", pl.concat_str([pl.col(c).cast(pl.String).fill_null("")
+                                                for c in cols], separator=",").alias("raw"))
+    return hit.select("line", "raw")
+
+
+def _parse_csv(path: str, timezone: str | None, states: frozenset[str]) -> ParsedExport:
+    lines, notes = _read_csv_lines(path)
+    header_line, header = lines.row(0)
+    sep = _sniff_separator(header)
+    columns = next(csv.reader([header], delimiter=sep))
+    lay = _detect_layout(columns, path)
+    body = lines.slice(1)
+    fields, malformed = _split_fields(body, len(columns), sep)
+    rename = {f"f{i}": c for i, c in enumerate(columns)}
+    fields = fields.rename(rename)
+    decimal_comma = sep != ","
+    if lay.shape == "long":
+        cols = {lay.time_col: "time", lay.tag_col: "tag", lay.value_col: "value"}
+        if lay.status_col:
+            cols[lay.status_col] = "status"
+        frame = fields.select("line", *[pl.col(k).alias(v) for k, v in cols.items()])
+        good, bad = _long_samples(frame, lay, path, timezone, states, decimal_comma)
+    else:
+        frame = fields.select("line", pl.col(lay.time_col).alias("time"), *lay.tag_cols)
+        good, bad = _wide_samples(frame, lay, path, timezone, states, decimal_comma)
+    return _finish(path, lay.shape, good, [malformed.select("line", "reason"), bad],
+                   lines, notes)
+
+
+def _parse_parquet(path: str, timezone: str | None, states: frozenset[str]) -> ParsedExport:
+    try:
+        table = pl.read_parquet(path)
+    except Exception as exc:  # noqa: BLE001 - any reader failure is a file error
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ExportError(f"{path}: not a readable Parquet file ({first})") from None
+    lay = _detect_layout(table.columns, path)
+    # line numbers as if the file were a CSV with a header: row i -> line i + 2
+    table = table.with_row_index("line", offset=2).with_columns(pl.col("line").cast(pl.Int64))
+    if lay.shape == "long":
+        cols = {lay.time_col: "time", lay.tag_col: "tag", lay.value_col: "value"}
+        if lay.status_col:
+            cols[lay.status_col] = "status"
+        frame = table.select("line", *[pl.col(k).alias(v) for k, v in cols.items()])
+        good, bad = _long_samples(frame, lay, path, timezone, states, False)
+    else:
+        frame = table.select("line", pl.col(lay.time_col).alias("time"), *lay.tag_cols)
+        good, bad = _wide_samples(frame, lay, path, timezone, states, False)
+    return _finish(path, lay.shape, good, [bad], table, [])
+
+
+def read_export(path: str | os.PathLike, *, timezone: str | None = None,
+                states: Iterable[str] | None = None) -> tuple[pl.DataFrame, pl.DataFrame]:
+    """Read one historian export into samples and quarantined rows.
+
+    Parameters
+    ----------
+    path : str or path-like
+        CSV or Parquet export, long (``tag,timestamp,value[,status]``) or wide
+        (``timestamp,TAG1,TAG2,...``). Column names are matched
+        case-insensitively with aliases (``time``/``ts``/``timestamp``,
+        ``tagname``/``tag``, ``val``/``value``, ``quality``/``status``).
+    timezone : str, optional
+        IANA time zone of naive local time stamps.
+    states : iterable of str, optional
+        Accepted state texts, default :data:`DIGITAL_STATES`.
+
+    Returns
+    -------
+    samples : polars.DataFrame
+        ``tag: str, ts: Datetime(us, UTC), value: Float64 (null for states),
+        status: str|null, source_file: str, source_line: Int64``; unique per
+        (tag, ts), sorted.
+    quarantine : polars.DataFrame
+        ``source_file, line, raw, reason``.
+
+    Raises
+    ------
+    ExportError
+        See :func:`parse_export`.
+
+    Notes
+    -----
+    The counts of dropped exact duplicates and of rows whose time runs
+    backwards are in :func:`parse_export`'s result.
+    """
+    parsed = parse_export(path, timezone=timezone, states=states)
+    return parsed.samples, parsed.quarantine
+
+
+# --------------------------------------------------------------------------
+# ingest into the store
+# --------------------------------------------------------------------------
+def expand_paths(paths_or_globs: str | os.PathLike | Iterable[str | os.PathLike]
+                 ) -> tuple[list[str], list[str]]:
+    """Expand globs and directories into a sorted, de-duplicated file list.
+
+    Returns
+    -------
+    files : list of str
+        Absolute paths.
+    errors : list of str
+        One line per pattern that matched nothing.
+    """
+    if isinstance(paths_or_globs, (str, os.PathLike)):
+        paths_or_globs = [paths_or_globs]
+    files: dict[str, None] = {}
+    errors = []
+    for item in paths_or_globs:
+        item = os.fspath(item)
+        if os.path.isdir(item):
+            hits = [str(p) for p in sorted(Path(item).iterdir()) if p.is_file()]
+        elif glob.has_magic(item):
+            hits = sorted(glob.glob(item, recursive=True))
+            hits = [h for h in hits if os.path.isfile(h)]
+        else:
+            hits = [item]
+        if not hits:
+            errors.append(f"{item}: no file matches")
+        for h in hits:
+            files.setdefault(os.path.abspath(h), None)
+    return list(files), errors
+
+
+def file_sha256(path: str | os.PathLike, chunk: int = 1 << 22) -> str:
+    """SHA-256 of a file, read in chunks [hex digest]."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while block := fh.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _one_line(exc: BaseException, path: str) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if path in text else f"{path}: {text}"
+
+
+def _ingest_one(store, path: str, timezone: str | None, force: bool) -> FileIngest:
+    if not os.path.isfile(path):
+        return FileIngest(path, error=f"{path}: no such file")
+    sha = file_sha256(path)
+    if not force and store.file_known(sha):
+        return FileIngest(path, unchanged=True,
+                          notes=(f"{path}: already ingested (same SHA-256); skipped",))
+    parsed = parse_export(path, timezone=timezone)
+    inserted, duplicates, quarantined = _write_parsed(store, parsed, sha)
+    return FileIngest(path, rows_read=parsed.samples.height, rows_inserted=inserted,
+                      rows_skipped_duplicate=duplicates, rows_quarantined=quarantined,
+                      notes=parsed.notes)
+
+
+def _write_parsed(store, parsed: ParsedExport, sha: str) -> tuple[int, int, int]:
+    """Write one parsed file in one transaction; return (inserted, duplicates, quarantined).
+
+    Samples whose (tag, ts) is already stored are duplicates when value and
+    status agree, else quarantined (the stored sample was first and wins).
+    """
+    with store.transaction():
+        matches = store.stored_matches(parsed.samples)
+        same = int(matches["same"].sum())
+        clash = matches.filter(~pl.col("same"))
+        clash_q = clash.select(
+            line=pl.col("source_line"),
+            reason=pl.format(DUPLICATE_REASON + " (tag {}; already stored from {} line {})",
+                             pl.col("tag"), pl.col("stored_file"), pl.col("stored_line")))
+        clash_q = clash_q.join(parsed.raw_for(clash_q["line"]), on="line", how="left").select(
+            source_file=pl.lit(parsed.path), line="line", raw="raw", reason="reason")
+        samples = parsed.samples
+        if clash.height:
+            samples = samples.join(clash.select("tag", "source_line"),
+                                   on=["tag", "source_line"], how="anti")
+        inserted = store.insert_new_samples(samples)
+        quarantine = pl.concat([parsed.quarantine, clash_q.cast(QUARANTINE_SCHEMA)])
+        store.insert_quarantine(quarantine)
+        duplicates = parsed.duplicates_dropped + same
+        store.record_ingested_file(parsed.path, sha, rows=parsed.samples.height,
+                                   rows_inserted=inserted, duplicates=duplicates,
+                                   quarantined=quarantine.height)
+    return inserted, duplicates, quarantine.height
+
+
+def ingest_exports(store, paths_or_globs, *, timezone: str | None = None,
+                   progress: Callable[[int, int, str], object] | None = None,
+                   force: bool = False) -> IngestReport:
+    """Ingest historian exports into a store, file by file.
+
+    Parameters
+    ----------
+    store : valvediag.store.Store
+        Open, writable store.
+    paths_or_globs : str, path-like or iterable of them
+        Files, directories (their files) or glob patterns (``**`` allowed).
+    timezone : str, optional
+        IANA time zone of naive local time stamps.
+    progress : callable, optional
+        ``progress(done, total, path)``, called after each file.
+    force : bool, default False
+        Re-read files whose SHA-256 was ingested before. Without it they are
+        skipped (re-reading them would insert nothing anyway).
+
+    Returns
+    -------
+    IngestReport
+
+    Notes
+    -----
+    Each file is parsed, de-duplicated and written in its own transaction, so
+    memory is bounded by the largest file, not the plant. A file that fails
+    gets a one-line error in the report and the others go on. A sample whose
+    (tag, ts) is already stored with the same value and status counts as a
+    duplicate; with a different value it is quarantined (the stored value
+    wins: first ingested is kept).
+    """
+    _check_timezone(timezone)
+    files, errors = expand_paths(paths_or_globs)
+    results = []
+    for i, path in enumerate(files, 1):
+        try:
+            res = _ingest_one(store, path, timezone, force)
+        except (ExportError, OSError, pl.exceptions.PolarsError) as exc:
+            res = FileIngest(path, error=_one_line(exc, path))
+        results.append(res)
+        if progress is not None:
+            progress(i, len(files), path)
+    errors += [r.error for r in results if r.error]
+    return IngestReport(
+        files=len(files),
+        rows_inserted=sum(r.rows_inserted for r in results),
+        rows_skipped_duplicate=sum(r.rows_skipped_duplicate for r in results),
+        rows_quarantined=sum(r.rows_quarantined for r in results),
+        errors=tuple(errors),
+        notes=tuple(n for r in results for n in r.notes),
+        per_file=tuple(results),
+    )

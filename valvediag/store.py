@@ -1,0 +1,469 @@
+"""
+The DuckDB store: samples, quarantine, the loop registry and scan results.
+
+Every SQL statement the store runs lives in ``sql/<name>.sql`` and is loaded
+by name (:func:`load_sql`); this module only binds parameters and moves polars
+frames in and out (``con.sql(q).pl()``, registered frames for bulk inserts).
+
+Notes
+-----
+* DuckDB allows one process to hold a database file open for writing; a
+  second process fails even read-only. Parallel workers must return frames and
+  let one task write (see DESIGN.md). Opening a locked file raises
+  :class:`StoreLockedError` with a one-line message.
+* The connection runs with ``TimeZone = 'UTC'``: every TIMESTAMPTZ comes back
+  as ``Datetime(us, UTC)``.
+* (tag, ts) of ``samples`` is unique. The ingest guarantees it with an
+  anti-join in one transaction per file, not with a PRIMARY KEY, because
+  DuckDB's ART index for it costs ~5x insert time and ~9x file size (measured
+  on 3 M rows). :meth:`Store.duplicate_keys` checks the invariant.
+* Time arguments must be timezone-aware :class:`datetime.datetime` objects;
+  naive ones are refused rather than guessed.
+* The SQL directory is ``<repo>/sql`` next to the package (editable install);
+  set ``VALVEDIAG_SQL_DIR`` to override.
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import datetime as dt
+import functools
+import json
+import math
+import os
+import uuid
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from pathlib import Path
+
+import duckdb
+import polars as pl
+
+from .registry import LoopSpec
+
+__all__ = ["Store", "StoreLockedError", "load_sql", "SQL_DIR", "FAULT_VERDICTS",
+           "VERDICTS", "EPISODE_COLUMNS", "VERDICT_COLUMNS"]
+
+SQL_DIR = Path(os.environ.get("VALVEDIAG_SQL_DIR",
+                              Path(__file__).resolve().parent.parent / "sql"))
+
+VERDICTS = ("insufficient-data", "no-oscillation", "not-integrating", "linear-oscillation",
+            "stiction", "backlash", "undecided")
+FAULT_VERDICTS = ("stiction", "backlash", "linear-oscillation")
+
+#: Columns a caller may give for episodes / verdicts (run_id is added by the store).
+EPISODE_COLUMNS: dict[str, pl.DataType] = {
+    "loop": pl.String(), "start_ts": pl.Datetime("us", "UTC"), "end_ts": pl.Datetime("us", "UTC"),
+    "period_s": pl.Float64(), "amplitude": pl.Float64(), "regularity": pl.Float64(),
+    "verdict": pl.String(), "bi": pl.Float64(), "confidence": pl.Float64(),
+}
+VERDICT_COLUMNS: dict[str, pl.DataType] = {
+    "loop": pl.String(), "verdict": pl.String(), "confidence": pl.Float64(),
+    "rank": pl.Int32(), "severity": pl.Float64(), "process_type": pl.String(),
+    "bi": pl.Float64(), "period_s": pl.Float64(), "amplitude": pl.Float64(),
+    "regularity": pl.Float64(), "reason": pl.String(), "evidence": pl.String(),
+    "quality": pl.String(),
+}
+_JSON_COLUMNS = ("evidence", "quality")
+_SAMPLE_FRAME_SCHEMA = {"ts": pl.Datetime("us", "UTC"), "value": pl.Float64, "status": pl.String}
+_HELD_ROLES = ("sp", "mode")
+
+
+class StoreLockedError(RuntimeError):
+    """The database file is held by another process."""
+
+
+@functools.cache
+def load_sql(name: str) -> str:
+    """Return the text of ``sql/<name>.sql``.
+
+    Raises
+    ------
+    KeyError
+        No such named query; the message lists the directory searched.
+    """
+    path = SQL_DIR / f"{name}.sql"
+    if not path.is_file():
+        raise KeyError(f"no named query {name!r} in {SQL_DIR}")
+    return path.read_text()
+
+
+def _aware(value: dt.datetime | None, what: str) -> dt.datetime | None:
+    if value is None:
+        return None
+    if not isinstance(value, dt.datetime):
+        raise TypeError(f"{what} must be a datetime, not {type(value).__name__}")
+    if value.tzinfo is None or value.utcoffset() is None:
+        raise ValueError(f"{what} {value.isoformat()} has no time zone; give an aware datetime "
+                         f"(e.g. tzinfo=datetime.timezone.utc)")
+    return value.astimezone(dt.timezone.utc)
+
+
+def _jsonable(obj):
+    """Turn numpy scalars, dataclasses, NaN/inf and tuples into plain JSON values."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        obj = dataclasses.asdict(obj)
+    if isinstance(obj, Mapping):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, set, frozenset)):
+        return [_jsonable(v) for v in obj]
+    if hasattr(obj, "tolist") and not isinstance(obj, (str, bytes)):  # numpy
+        return _jsonable(obj.tolist())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, (dt.datetime, dt.date)):
+        return obj.isoformat()
+    return obj
+
+
+def _to_json(obj) -> str | None:
+    if obj is None or isinstance(obj, str):
+        return obj
+    return json.dumps(_jsonable(obj), allow_nan=False)
+
+
+def _result_frame(rows, columns: dict[str, pl.DataType], run_id: str, what: str
+                  ) -> pl.DataFrame:
+    """Normalise episodes/verdicts given as a frame or as mappings."""
+    if rows is None:
+        rows = []
+    if isinstance(rows, pl.DataFrame):
+        frame = rows
+    else:
+        records = [dict(r) for r in rows]
+        for r in records:
+            for c in _JSON_COLUMNS:
+                if c in r:
+                    r[c] = _to_json(r[c])
+        frame = pl.DataFrame(records, schema_overrides={k: v for k, v in columns.items()
+                                                        if any(k in r for r in records)},
+                             strict=False) if records else pl.DataFrame(schema=columns)
+    unknown = [c for c in frame.columns if c not in columns and c != "run_id"]
+    if unknown:
+        raise ValueError(f"{what}: unknown columns {unknown}; expected {list(columns)}")
+    for c in _JSON_COLUMNS:
+        if c in frame.columns and frame.schema[c] != pl.String:
+            frame = frame.with_columns(pl.col(c).map_elements(_to_json, return_dtype=pl.String))
+    frame = frame.with_columns([pl.lit(None, t).alias(c) for c, t in columns.items()
+                                if c not in frame.columns])
+    return frame.select(pl.lit(run_id).alias("run_id"),
+                        *[pl.col(c).cast(t) for c, t in columns.items()])
+
+
+class Store:
+    """A valvediag DuckDB database.
+
+    Parameters
+    ----------
+    path : str or path-like, default ":memory:"
+        Database file; created with the schema when missing.
+    read_only : bool, default False
+        Open without write access (the schema must exist).
+
+    Raises
+    ------
+    StoreLockedError
+        Another process holds the file.
+
+    Examples
+    --------
+    >>> with Store("plant.duckdb") as store:            # doctest: +SKIP
+    ...     store.tags()
+    """
+
+    def __init__(self, path: str | os.PathLike = ":memory:", *, read_only: bool = False):
+        self.path = os.fspath(path)
+        try:
+            self.con = duckdb.connect(self.path, read_only=read_only)
+        except duckdb.IOException as exc:
+            first = " ".join(str(exc).split())
+            if "lock" in first.lower():
+                raise StoreLockedError(f"{self.path}: the store is open in another process "
+                                       f"(DuckDB allows one writer): {first}") from None
+            raise
+        self.con.execute("SET TimeZone = 'UTC'")
+        if not read_only:
+            self.con.execute(load_sql("schema"))
+
+    # -- plumbing ----------------------------------------------------------
+    def close(self) -> None:
+        """Close the connection."""
+        self.con.close()
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def query(self, name: str, **params) -> pl.DataFrame:
+        """Run the named read query ``sql/<name>.sql`` and return a polars frame."""
+        return self.con.sql(load_sql(name), params=params or None).pl()
+
+    def _run(self, name: str, **params) -> int | None:
+        """Run a named statement; return its row count when it reports one."""
+        res = self.con.execute(load_sql(name), params or None)
+        try:
+            row = res.fetchone()
+        except duckdb.InvalidInputException:
+            return None
+        return None if row is None else row[0]
+
+    @contextlib.contextmanager
+    def transaction(self) -> Iterator[Store]:
+        """Run the body in one transaction; roll back on any exception."""
+        self.con.begin()
+        try:
+            yield self
+        except BaseException:
+            self.con.rollback()
+            raise
+        self.con.commit()
+
+    @contextlib.contextmanager
+    def _registered(self, name: str, frame: pl.DataFrame) -> Iterator[None]:
+        self.con.register(name, frame)
+        try:
+            yield
+        finally:
+            self.con.unregister(name)
+
+    def counts(self) -> dict[str, int]:
+        """Row count of every table."""
+        return self.query("table_counts").row(0, named=True)
+
+    # -- ingest ------------------------------------------------------------
+    def file_known(self, sha256: str) -> bool:
+        """True when a file with this content hash was ingested before."""
+        return bool(self.query("ingested_file_known", sha256=sha256)["known"][0])
+
+    def stored_matches(self, samples: pl.DataFrame) -> pl.DataFrame:
+        """Incoming samples whose (tag, ts) is already stored.
+
+        Returns
+        -------
+        polars.DataFrame
+            ``source_line, tag, same (bool: value and status agree),
+            stored_file, stored_line``.
+        """
+        if samples.is_empty():
+            return pl.DataFrame(schema={"source_line": pl.Int64, "tag": pl.String,
+                                        "same": pl.Boolean, "stored_file": pl.String,
+                                        "stored_line": pl.Int64})
+        with self._registered("incoming_samples", samples):
+            return self.query("samples_match_stored", ts_min=samples["ts"].min(),
+                              ts_max=samples["ts"].max())
+
+    def insert_new_samples(self, samples: pl.DataFrame) -> int:
+        """Insert samples whose (tag, ts) is not stored yet; return how many [rows]."""
+        if samples.is_empty():
+            return 0
+        with self._registered("incoming_samples", samples):
+            return int(self._run("samples_insert_new", ts_min=samples["ts"].min(),
+                                 ts_max=samples["ts"].max()) or 0)
+
+    def insert_quarantine(self, rows: pl.DataFrame) -> int:
+        """Add quarantine rows (``source_file, line, raw, reason``); return new rows."""
+        if rows.is_empty():
+            return 0
+        with self._registered("incoming_quarantine", rows):
+            return int(self._run("quarantine_insert") or 0)
+
+    def record_ingested_file(self, path: str, sha256: str, *, rows: int, rows_inserted: int,
+                             duplicates: int, quarantined: int) -> None:
+        """Remember that a file was ingested (path, content hash, counts)."""
+        self._run("ingested_file_record", path=path, sha256=sha256, rows=rows,
+                  rows_inserted=rows_inserted, duplicates=duplicates, quarantined=quarantined)
+
+    def ingested_files(self) -> pl.DataFrame:
+        """Every ingested file with its counts."""
+        return self.query("ingested_files")
+
+    def quarantine(self, source_file: str | None = None) -> pl.DataFrame:
+        """Quarantined rows, optionally of one file."""
+        return self.query("quarantine_rows", source_file=source_file)
+
+    def duplicate_keys(self) -> int:
+        """Number of (tag, ts) keys stored more than once (the invariant says 0)."""
+        return int(self.query("samples_duplicate_keys")["n"][0])
+
+    # -- reading samples ---------------------------------------------------
+    def tags(self) -> list[str]:
+        """All tags with at least one sample, sorted."""
+        return self.query("tags")["tag"].to_list()
+
+    def latest_timestamps(self) -> pl.DataFrame:
+        """Per tag: ``last_ts`` (any sample), ``last_good_ts`` and ``rows``."""
+        return self.query("tag_latest")
+
+    def fetch_tag(self, tag: str, start: dt.datetime | None = None,
+                  end: dt.datetime | None = None, *, include_previous: bool = False
+                  ) -> pl.DataFrame:
+        """One tag's samples in ``[start, end)``.
+
+        Parameters
+        ----------
+        tag : str
+        start, end : datetime, optional
+            Timezone-aware bounds; None is open.
+        include_previous : bool, default False
+            Also return the last sample before ``start`` (for held signals such
+            as a set point that changed before the window).
+
+        Returns
+        -------
+        polars.DataFrame
+            ``ts: Datetime(us, UTC), value: Float64, status: str``, by time.
+        """
+        name = "tag_window_with_previous" if include_previous else "tag_window"
+        frame = self.query(name, tag=tag, start=_aware(start, "start"), end=_aware(end, "end"))
+        return frame.cast(_SAMPLE_FRAME_SCHEMA)
+
+    def fetch_loop(self, loop: LoopSpec, start: dt.datetime | None = None,
+                   end: dt.datetime | None = None) -> dict[str, pl.DataFrame]:
+        """The samples of every tag of a loop, by role (``pv``, ``op``, ...).
+
+        Set point and mode include the last sample before ``start``. A tag with
+        no data gives an empty frame; :meth:`missing_tags` names those.
+        """
+        return {role: self.fetch_tag(tag, start, end, include_previous=role in _HELD_ROLES)
+                for role, tag in loop.tags.items()}
+
+    def missing_tags(self, loop: LoopSpec, start: dt.datetime | None = None,
+                     end: dt.datetime | None = None) -> dict[str, str]:
+        """Roles whose tag has no sample at all (in ``[start, end)`` when given).
+
+        Returns
+        -------
+        dict
+            role -> tag, e.g. ``{"op": "FIC101.OP"}``; empty when all have data.
+        """
+        tags = loop.tags
+        if not tags:
+            return {}
+        present = set(self.query("tags_with_data", tags=sorted(set(tags.values())),
+                                 start=_aware(start, "start"), end=_aware(end, "end"))["tag"])
+        return {role: tag for role, tag in tags.items() if tag not in present}
+
+    # -- registry ----------------------------------------------------------
+    def replace_loops(self, loops: Iterable[LoopSpec]) -> int:
+        """Replace the stored registry with ``loops``; return how many."""
+        loops = list(loops)
+        frame = pl.DataFrame(
+            [{**dataclasses.asdict(l), "issues": list(l.issues)} for l in loops],
+            schema={"loop": pl.String, "pv_tag": pl.String, "op_tag": pl.String,
+                    "sp_tag": pl.String, "mv_tag": pl.String, "mode_tag": pl.String,
+                    "process_type": pl.String, "unit": pl.String, "span": pl.Float64,
+                    "criticality": pl.Float64, "description": pl.String,
+                    "issues": pl.List(pl.String)})
+        with self.transaction(), self._registered("incoming_loops", frame):
+            self._run("loops_delete")
+            self._run("loops_insert")
+        return len(loops)
+
+    def loops(self) -> list[LoopSpec]:
+        """The stored registry, by loop name."""
+        out = []
+        for row in self.query("loops_all").iter_rows(named=True):
+            row["issues"] = tuple(row["issues"] or ())
+            row["span"] = math.nan if row["span"] is None else row["span"]
+            row["description"] = row["description"] or ""
+            out.append(LoopSpec(**row))
+        return out
+
+    # -- runs and results --------------------------------------------------
+    def start_run(self, *, window_start: dt.datetime | None = None,
+                  window_end: dt.datetime | None = None,
+                  exports: str | Sequence[str] | None = None,
+                  params: Mapping | None = None, run_id: str | None = None) -> str:
+        """Register a scan with status ``running``; return its run id.
+
+        ``run_id`` defaults to ``<UTC time>-<8 hex>``, which sorts by time.
+        """
+        if run_id is None:
+            now = dt.datetime.now(dt.timezone.utc)
+            run_id = f"{now:%Y%m%dT%H%M%S}Z-{uuid.uuid4().hex[:8]}"
+        if exports is not None and not isinstance(exports, str):
+            exports = ";".join(os.fspath(e) for e in exports)
+        self._run("run_start", run_id=run_id, window_start=_aware(window_start, "window_start"),
+                  window_end=_aware(window_end, "window_end"), exports=exports,
+                  params=_to_json(params or {}))
+        return run_id
+
+    def run(self, run_id: str) -> dict:
+        """One run's row as a dict. Raises KeyError when unknown."""
+        frame = self.query("run_get", run_id=run_id)
+        if frame.is_empty():
+            raise KeyError(f"no run {run_id!r} in {self.path}")
+        return frame.row(0, named=True)
+
+    def runs(self) -> pl.DataFrame:
+        """All runs, oldest first."""
+        return self.query("runs_all")
+
+    def finish_run(self, run_id: str, status: str = "complete") -> None:
+        """Mark a run ``complete`` or ``failed`` and stamp ``finished_at``."""
+        if status not in ("complete", "failed"):
+            raise ValueError(f"run status must be 'complete' or 'failed', not {status!r}")
+        self.run(run_id)
+        self._run("run_finish", run_id=run_id, status=status)
+
+    def write_results(self, run_id: str, episodes=None, verdicts=None) -> None:
+        """Write a run's episodes and verdicts in one transaction.
+
+        Parameters
+        ----------
+        run_id : str
+            A run with status ``running``. Earlier results of the same run are
+            replaced, so a retried task is idempotent.
+        episodes, verdicts : polars.DataFrame or sequence of mappings, optional
+            Columns from :data:`EPISODE_COLUMNS` / :data:`VERDICT_COLUMNS`
+            (missing ones are NULL). ``evidence``/``quality`` may be dicts or
+            dataclasses; they are stored as JSON (NaN -> null).
+
+        Raises
+        ------
+        ValueError
+            Unknown run, a run that is not running, unknown columns, or a
+            verdict outside :data:`VERDICTS`.
+        """
+        status = self.run(run_id)["status"]
+        if status != "running":
+            raise ValueError(f"run {run_id!r} is {status}; its results can no longer change")
+        ep = _result_frame(episodes, EPISODE_COLUMNS, run_id, "episodes")
+        ve = _result_frame(verdicts, VERDICT_COLUMNS, run_id, "verdicts")
+        bad = sorted(set(ve["verdict"].drop_nulls()) - set(VERDICTS))
+        if bad or ve["verdict"].null_count():
+            raise ValueError(f"verdicts: unknown verdict values {bad or [None]}; "
+                             f"expected one of {', '.join(VERDICTS)}")
+        dup = ve.filter(pl.col("loop").is_duplicated())["loop"].unique().to_list()
+        if dup:
+            raise ValueError(f"verdicts: more than one verdict for loops {sorted(dup)}")
+        with self.transaction():
+            self._run("episodes_delete_run", run_id=run_id)
+            self._run("verdicts_delete_run", run_id=run_id)
+            with self._registered("incoming_episodes", ep):
+                self._run("episodes_insert")
+            with self._registered("incoming_verdicts", ve):
+                self._run("verdicts_insert")
+
+    def verdicts(self, run_id: str | None = None) -> pl.DataFrame:
+        """Verdicts of a run (default: the latest complete run), by rank."""
+        return self.query("run_verdicts", run_id=run_id)
+
+    def episodes(self, run_id: str) -> pl.DataFrame:
+        """Episodes of a run, by loop and start."""
+        return self.query("run_episodes", run_id=run_id)
+
+    def verdict_history(self, loop: str) -> pl.DataFrame:
+        """A loop's verdicts over all complete runs, oldest first."""
+        return self.query("verdict_history", loop=loop)
+
+    def new_since_last_run(self) -> pl.DataFrame:
+        """Loops that turned faulty in the latest complete run.
+
+        A loop is listed when its verdict in the latest complete run is one of
+        :data:`FAULT_VERDICTS` and in the previous complete run it was not (or
+        the loop was absent, or there is no previous complete run).
+        """
+        return self.query("new_since_last_run")
+
