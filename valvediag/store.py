@@ -354,7 +354,7 @@ class Store:
                     "sp_tag": pl.String, "mv_tag": pl.String, "mode_tag": pl.String,
                     "process_type": pl.String, "unit": pl.String, "span": pl.Float64,
                     "criticality": pl.Float64, "description": pl.String,
-                    "issues": pl.List(pl.String)})
+                    "issues": pl.List(pl.String)}).with_columns(pl.col("span").fill_nan(None))
         with self.transaction(), self._registered("incoming_loops", frame):
             self._run("loops_delete")
             self._run("loops_insert")

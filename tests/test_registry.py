@@ -1,0 +1,111 @@
+"""Tests of valvediag.registry (loops.csv)."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from valvediag.ingest import ingest_exports
+from valvediag.registry import LoopSpec, RegistryError, read_loops_csv
+from valvediag.store import Store
+
+DATA = Path(__file__).parent / "data" / "ingest"
+
+
+def write(tmp_path: Path, text: str, name: str = "loops.csv") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_reads_loops_with_defaults():
+    loops, _ = read_loops_csv(DATA / "loops.csv")
+    fic, lic = loops[0], loops[1]
+    assert fic == LoopSpec("FIC101", pv_tag="FIC101.PV", op_tag="FIC101.OP", sp_tag="FIC101.SP",
+                           process_type="self-regulating", unit="m3/h", span=200.0,
+                           criticality=2.0, description="Feed flow")
+    assert lic.process_type == "integrating" and lic.criticality == 1.0 and lic.mv_tag is None
+    assert fic.tags == {"pv": "FIC101.PV", "op": "FIC101.OP", "sp": "FIC101.SP"}
+
+
+def test_row_without_pv_tag_is_kept_with_an_issue():
+    loops, problems = read_loops_csv(DATA / "loops.csv")
+    tic = next(l for l in loops if l.loop == "TIC300")
+    assert tic.issues == ("no PV tag in loops.csv",)
+    assert not tic.usable and math.isnan(tic.span)
+    assert any("line 4 (loop TIC300)" in p and "no PV tag in loops.csv" in p for p in problems)
+
+
+def test_invalid_process_type_names_the_loop():
+    loops, problems = read_loops_csv(DATA / "loops.csv")
+    pic = next(l for l in loops if l.loop == "PIC400")
+    assert pic.process_type == "unknown"
+    assert any("(loop PIC400)" in p and "invalid process_type 'sticky'" in p for p in problems)
+
+
+def test_duplicate_loop_name_keeps_the_first_and_reports():
+    loops, problems = read_loops_csv(DATA / "loops.csv")
+    assert [l.loop for l in loops] == ["FIC101", "LIC200", "TIC300", "PIC400"]
+    assert next(l for l in loops if l.loop == "FIC101").pv_tag == "FIC101.PV"
+    assert any("line 6 (loop FIC101): duplicate loop name (first on line 2)" in p
+               for p in problems)
+    assert len(problems) == 3
+
+
+def test_unknown_columns_are_a_one_line_error(tmp_path):
+    path = write(tmp_path, "loop,pv_tag,op_tag,owner,color\nA,a,b,me,red\n")
+    with pytest.raises(RegistryError) as err:
+        read_loops_csv(path)
+    msg = str(err.value)
+    assert "\n" not in msg and str(path) in msg and "['owner', 'color']" in msg
+
+
+@pytest.mark.parametrize("text, match", [
+    ("", "empty loop registry"),
+    ("loop,op_tag\nA,a\n", r"missing required columns \['pv_tag'\]"),
+    ("loop,pv,pv_tag,op\nA,a,a,b\n", r"columns \['pv_tag'\] given more than once"),
+])
+def test_unusable_headers_are_errors(tmp_path, text, match):
+    with pytest.raises(RegistryError, match=match):
+        read_loops_csv(write(tmp_path, text))
+
+
+def test_missing_file_is_an_error(tmp_path):
+    with pytest.raises(RegistryError, match="nope.csv: cannot read loop registry"):
+        read_loops_csv(tmp_path / "nope.csv")
+
+
+def test_header_aliases_and_blank_lines(tmp_path):
+    path = write(tmp_path, "Loop,PV,OP,Mode,Process_Type,Span\n\nA,a.pv,a.op,a.mode,"
+                           "Self Regulating,5\n")
+    loops, problems = read_loops_csv(path)
+    assert problems == []
+    assert loops == [LoopSpec("A", pv_tag="a.pv", op_tag="a.op", mode_tag="a.mode",
+                              process_type="self-regulating", span=5.0)]
+
+
+def test_bad_numbers_and_ragged_rows(tmp_path):
+    path = write(tmp_path, "loop,pv_tag,op_tag,span,criticality\n"
+                           "A,a,b,-3,x\n"
+                           "B,c\n"
+                           "C,d,e,1,1,extra\n"
+                           ",f,g,,\n")
+    loops, problems = read_loops_csv(path)
+    a, b = loops
+    assert math.isnan(a.span) and a.criticality == 1.0 and len(a.issues) == 2
+    assert b.op_tag is None and b.issues == ("no OP tag in loops.csv",)
+    assert any("line 3 (loop B): 2 fields" in p for p in problems)
+    assert any("line 4: 6 fields" in p and "row skipped" in p for p in problems)
+    assert any("line 5: no loop name" in p for p in problems)
+
+
+def test_a_registry_tag_absent_from_the_exports_is_detectable(tmp_path):
+    loops, _ = read_loops_csv(DATA / "loops.csv")
+    with Store(tmp_path / "s.duckdb") as store:
+        ingest_exports(store, [DATA / "wide.csv"])
+        store.replace_loops(loops)
+        missing = {l.loop: store.missing_tags(l) for l in store.loops()}
+    assert missing["FIC101"] == {"sp": "FIC101.SP"}
+    assert missing["LIC200"] == {"op": "LIC200.OP"}
+    assert missing["TIC300"] == {"op": "TIC300.OP"}  # and no PV tag at all (an issue)
