@@ -1,0 +1,166 @@
+"""Tests of valvediag.quality on small synthetic loops with hand-counted answers."""
+from __future__ import annotations
+
+import datetime as dt
+import json
+
+import numpy as np
+import polars as pl
+import pytest
+
+from valvediag.align import align_loop
+from valvediag.quality import quality_metrics
+
+UTC = dt.timezone.utc
+T0 = dt.datetime(2024, 1, 1, tzinfo=UTC)
+N = 3600  # one hour at 1 s
+
+
+def frame(seconds, values, status=None) -> pl.DataFrame:
+    values = [None if (v is None or (isinstance(v, float) and np.isnan(v))) else float(v)
+              for v in values]
+    if status is None:
+        status = [None if v is not None else "I/O Timeout" for v in values]
+    return pl.DataFrame({"ts": [T0 + dt.timedelta(seconds=float(s)) for s in seconds],
+                         "value": pl.Series(values, dtype=pl.Float64),
+                         "status": pl.Series(status, dtype=pl.String)})
+
+
+def clean_loop(n=N, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n)
+    pv = 50 + 5 * np.sin(2 * np.pi * t / 120) + rng.normal(0, 0.05, n)
+    op = 50 + 20 * np.sin(2 * np.pi * t / 120 + 1)
+    return t, pv, op
+
+
+def measure(frames, **kw):
+    span = kw.pop("span", None)
+    aligned = align_loop(frames, **kw)
+    return quality_metrics(aligned, frames, span=span)
+
+
+def test_clean_loop_has_no_issues():
+    t, pv, op = clean_loop()
+    q = measure({"pv": frame(t, pv), "op": frame(t, op)}, span=100.0)
+    assert q.issues == ()
+    assert q.bad_pct == 0.0 and q.valid_pct == 100.0 and q.gap_count == 0
+    assert q.frozen_pct == 0.0 and not q.compressed and q.saturation_pct == 0.0
+    assert q.compression_ratio == 1.0 and q.median_spacing_s == 1.0
+    assert q.manual_pct is None
+    assert q.samples_per_cycle(120.0) == 120.0
+    json.dumps(q.as_dict())  # serialisable for the verdicts table
+
+
+def test_bad_percentage_counts_state_rows_over_pv_and_op():
+    t, pv, op = clean_loop()
+    pv = pv.astype(object)
+    pv[100:280] = None            # 180 bad PV rows
+    op = op.astype(object)
+    op[2000:2036] = None          # 36 bad OP rows
+    q = measure({"pv": frame(t, pv), "op": frame(t, op)})
+    assert q.bad_pct == pytest.approx(100 * (180 + 36) / (2 * N))
+    assert q.bad_pct_by_role == {"pv": pytest.approx(5.0), "op": pytest.approx(1.0)}
+    assert q.gap_count == 0  # bad states are rows, not gaps
+    assert q.valid_pct < 100
+    assert not any("bad states" in i for i in q.issues)  # 3.0 % < 5 % limit
+
+
+def test_gaps_are_counted_with_the_longest():
+    t, pv, op = clean_loop()
+    keep = np.ones(N, bool)
+    keep[1000:1100] = False   # 101 s interval
+    keep[2000:2010] = False   # 11 s interval
+    q = measure({"pv": frame(t[keep], pv[keep]), "op": frame(t, op)})
+    assert q.gap_count == 2
+    assert q.longest_gap_s == pytest.approx(101.0)
+    assert any("2 gaps in PV/OP, longest 101 s" == i for i in q.issues)
+
+
+def test_frozen_sensor_is_detected():
+    t, pv, op = clean_loop()
+    pv = pv.copy()
+    pv[1200:2400] = 51.234   # 20 min of identical values
+    q = measure({"pv": frame(t, pv), "op": frame(t, op)})
+    assert q.longest_frozen_s == pytest.approx(1199.0)
+    assert q.frozen_pct == pytest.approx(100 * 1200 / N)
+    assert any(i.startswith("PV frozen") for i in q.issues)
+
+
+def test_short_flat_stretch_is_not_frozen():
+    t, pv, op = clean_loop()
+    pv = pv.copy()
+    pv[100:160] = 50.0   # one minute: below the 10 min limit
+    q = measure({"pv": frame(t, pv), "op": frame(t, op)})
+    assert q.frozen_pct == 0.0 and q.longest_frozen_s == pytest.approx(59.0)
+
+
+def test_compressed_pv_is_flagged():
+    t, pv, op = clean_loop()
+    rng = np.random.default_rng(3)
+    # keep an irregular subset, as swinging-door compression does
+    keep = np.sort(rng.choice(N, size=400, replace=False))
+    keep[0], keep[-1] = 0, N - 1
+    q = measure({"pv": frame(t[keep], pv[keep]), "op": frame(t, op)}, sample_time=1.0,
+                max_gap=60.0)
+    assert q.compressed
+    assert q.compression_ratio == pytest.approx(400 / N)
+    assert q.median_spacing_s > 3.0
+    assert any("looks compressed" in i for i in q.issues)
+
+
+def test_step_held_values_are_flagged():
+    t, pv, op = clean_loop()
+    held = pv[(t // 10) * 10]  # a 10 s value re-exported every second
+    q = measure({"pv": frame(t, held), "op": frame(t, op)})
+    assert q.repeat_fraction == pytest.approx(0.9, abs=0.01)
+    assert q.compressed
+    assert any("step-held" in i for i in q.issues)
+
+
+def test_op_saturation_at_100_and_at_its_own_limit():
+    t, pv, op = clean_loop()
+    op = op.copy()
+    op[0:360] = 100.0                      # 10 % of the time at 100 %
+    q = measure({"pv": frame(t, pv), "op": frame(t, op)})
+    assert q.saturation_pct == pytest.approx(10.0, abs=0.1)
+    # stuck at its own maximum (a configured high limit of 65 %) for 10 minutes
+    op2 = 50 + 10 * np.sin(2 * np.pi * t / 120)
+    op2[1000:1600] = 65.0
+    q2 = measure({"pv": frame(t, pv), "op": frame(t, op2)})
+    assert q2.saturation_pct == pytest.approx(100 * 600 / N)
+    assert any("OP saturated" in i for i in q2.issues)
+
+
+def test_constant_op_is_not_saturation():
+    t, pv, _ = clean_loop()
+    q = measure({"pv": frame(t, pv), "op": frame(t, np.full(N, 42.0))})
+    assert q.saturation_pct == 0.0
+
+
+def test_manual_mode_share_from_the_mode_tag():
+    t, pv, op = clean_loop()
+    mode = frame([0, 900, 1800], [None] * 3, status=["AUTO", "MAN", "CAS"])
+    q = measure({"pv": frame(t, pv), "op": frame(t, op), "mode": mode})
+    assert q.manual_pct == pytest.approx(25.0, abs=0.05)
+    assert any("manual for 25.0%" in i for i in q.issues)
+
+
+def test_numeric_mode_codes_are_not_guessed():
+    t, pv, op = clean_loop()
+    q = measure({"pv": frame(t, pv), "op": frame(t, op), "mode": frame([0], [3.0])})
+    assert q.manual_pct is None
+    assert any("mode tag values not understood (3.0)" in i for i in q.issues)
+
+
+def test_coarse_resolution_against_span():
+    t, pv, op = clean_loop()
+    coarse = np.round(pv)          # 1 unit steps on a 100 unit span = 1 %
+    q = measure({"pv": frame(t, coarse), "op": frame(t, op)}, span=100.0)
+    assert q.pv_resolution == 1.0
+    assert any("coarse PV resolution" in i for i in q.issues)
+
+
+def test_no_pv_data():
+    q = measure({"pv": frame([], []), "op": frame([0, 1], [1.0, 2.0])})
+    assert "no PV data" in q.issues

@@ -1,0 +1,332 @@
+"""
+Data-quality screen of one loop: is the data fit for valve diagnosis?
+
+:func:`quality_metrics` measures, from the raw samples and the aligned grid:
+
+* **bad states**: share of PV/OP rows that are digital states (value NULL);
+* **gaps**: intervals without any sample longer than the alignment's
+  ``max_gap``;
+* **frozen sensor**: long runs of exactly identical PV values;
+* **compression**: raw samples per grid point, median raw spacing against the
+  grid, irregular spacing, and step-held (repeated) values. Below about ten
+  samples per oscillation period the waveform shape, and with it the
+  stiction/backlash signature, is lost [1]_;
+* **saturation**: OP at 0/100 % or stuck at its own minimum/maximum;
+* **manual mode**: share of time in manual, when the loop has a mode tag;
+* **PV resolution**: the smallest PV step, against the span when known.
+
+Each finding that crosses a limit adds a human-readable line to ``issues``.
+
+References
+----------
+.. [1] Thornhill, N. F., Choudhury, M. A. A. S., Shah, S. L. (2004). The impact
+   of compression on data-driven process analyses. Journal of Process Control
+   14, 389-398.
+.. [2] Jelali, M., Huang, B. (eds.) (2010). Detection and Diagnosis of
+   Stiction in Control Loops. Springer, ch. 2 (data pre-processing).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import polars as pl
+
+from .align import AlignedLoop, contiguous_segments, to_epoch_us
+
+__all__ = ["DataQuality", "quality_metrics", "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
+
+#: Mode texts meaning "the controller is not closing the loop".
+MANUAL_MODES = frozenset({"MAN", "MANUAL", "IMAN", "LO", "OOS", "O/S", "LOCAL", "TRK", "TRACK"})
+#: Mode texts meaning "the loop is closed".
+AUTO_MODES = frozenset({"AUTO", "AUTOMATIC", "CAS", "CASCADE", "RCAS", "ROUT", "BCAS", "B-CAS"})
+
+#: Thresholds of the issues list.
+LIMITS = {
+    "bad_pct": 5.0,            # [%] of rows
+    "valid_pct": 80.0,         # [%] of the grid, below -> issue
+    "saturation_pct": 5.0,     # [%] of valid OP points
+    "manual_pct": 5.0,         # [%] of time with a known mode
+    "frozen_min_points": 50,   # [-] run length, together with frozen_min_s
+    "frozen_min_s": 600.0,     # [s]
+    "saturation_min_points": 20,
+    "saturation_min_s": 60.0,  # [s]
+    "spacing_ratio": 3.0,      # median raw spacing / grid, above -> compressed
+    "spacing_spread": 4.0,     # p90 / p10 raw spacing, above -> irregular (compressed)
+    "repeat_fraction": 0.5,    # share of repeated consecutive PV values -> step-held
+    "resolution_pct": 0.1,     # [% of span] PV step, above -> coarse
+    "op_limit_tol": 0.5,       # [%] distance from 0/100 counted as saturated
+}
+
+
+@dataclass(frozen=True)
+class DataQuality:
+    """Data-quality figures of one loop over one window.
+
+    Attributes
+    ----------
+    rows : mapping of str to int
+        Raw rows per role [rows].
+    bad_pct : float
+        Bad-state rows / all rows, over PV and OP together [%].
+    bad_pct_by_role : mapping of str to float
+        The same per role [%].
+    valid_pct : float
+        Valid grid points [%].
+    gap_count : int
+        Intervals without any PV or OP sample longer than ``max_gap``,
+        counted per role and summed; the window edges count when the grid
+        extends past the data.
+    longest_gap_s : float
+        Longest such interval [s] (0 when none).
+    frozen_pct : float
+        Valid PV grid points inside frozen runs [%].
+    longest_frozen_s : float
+        Longest run of identical PV values on the grid [s].
+    compression_ratio : float
+        Raw PV rows / grid points [-].
+    median_spacing_s : float
+        Median interval between raw PV samples [s].
+    spacing_spread : float
+        90th / 10th percentile of the raw PV spacing [-] (1 = regular).
+    repeat_fraction : float
+        Share of consecutive good raw PV values that repeat exactly [-].
+    compressed : bool
+        The raw PV looks compressed or step-held (see Notes).
+    saturation_pct : float or None
+        Valid OP points at 0/100 % or at its own min/max for a long stretch
+        [%]; None without OP.
+    manual_pct : float or None
+        Time in a manual mode among the time with a known mode [%]; None
+        without a mode tag or when no mode text is understood.
+    pv_resolution : float or None
+        Smallest non-zero step between raw PV values [PV unit].
+    sample_time : float
+        Grid spacing [s].
+    issues : tuple of str
+        Human-readable findings, one line each.
+
+    Notes
+    -----
+    ``compressed`` is set when the median raw spacing exceeds
+    ``LIMITS["spacing_ratio"]`` grid steps, when the spacing is irregular
+    (p90/p10 above ``LIMITS["spacing_spread"]``), or when more than
+    ``LIMITS["repeat_fraction"]`` of consecutive values repeat exactly while
+    the PV does move (a historian or export that re-samples a held value). A
+    heuristic: a slow, coarsely quantised signal can look step-held.
+    """
+
+    rows: Mapping[str, int]
+    bad_pct: float
+    bad_pct_by_role: Mapping[str, float]
+    valid_pct: float
+    gap_count: int
+    longest_gap_s: float
+    frozen_pct: float
+    longest_frozen_s: float
+    compression_ratio: float
+    median_spacing_s: float
+    spacing_spread: float
+    repeat_fraction: float
+    compressed: bool
+    saturation_pct: float | None
+    manual_pct: float | None
+    pv_resolution: float | None
+    sample_time: float
+    issues: tuple[str, ...] = field(default_factory=tuple)
+
+    def samples_per_cycle(self, period_s: float) -> float:
+        """Raw PV samples per oscillation period of ``period_s`` [s] (below ~10: shape lost)."""
+        if not self.median_spacing_s or math.isnan(self.median_spacing_s):
+            return float("nan")
+        return period_s / self.median_spacing_s
+
+    def as_dict(self) -> dict:
+        """Plain dict for JSON (NaN kept as float; the store turns it into null)."""
+        d = asdict(self)
+        d["rows"] = dict(self.rows)
+        d["bad_pct_by_role"] = dict(self.bad_pct_by_role)
+        d["issues"] = list(self.issues)
+        return d
+
+
+def _pct(part: float, whole: float) -> float:
+    return float(100.0 * part / whole) if whole else float("nan")
+
+
+def _ts_seconds(frame: pl.DataFrame) -> np.ndarray:
+    return np.sort(to_epoch_us(frame["ts"].drop_nulls())) / 1e6
+
+
+def _gaps(frame: pl.DataFrame, aligned: AlignedLoop) -> list[float]:
+    """Intervals [s] longer than max_gap between samples, window edges included."""
+    t = _ts_seconds(frame)
+    if aligned.n and aligned.start is not None:
+        t0 = aligned.start.timestamp()
+        t = np.concatenate(([t0], t[(t >= t0) & (t <= t0 + aligned.t[-1])],
+                            [t0 + aligned.t[-1]]))
+    d = np.diff(t)
+    return d[d > aligned.max_gap].tolist()
+
+
+def _runs(mask: np.ndarray, min_points: int) -> list[tuple[int, int]]:
+    return [(a, b) for a, b in contiguous_segments(mask) if b - a >= min_points]
+
+
+def _frozen(aligned: AlignedLoop, span: float | None) -> tuple[float, float]:
+    """(% of valid PV points in frozen runs, longest identical run [s])."""
+    pv, ok = aligned.pv, aligned.role_valid.get("pv", aligned.valid)
+    if pv.size < 2 or not ok.any():
+        return 0.0, 0.0
+    tol = 1e-9 * span if span and math.isfinite(span) else 0.0
+    same = np.zeros(pv.size, bool)
+    step = ok[1:] & ok[:-1] & (np.abs(np.diff(pv)) <= tol)
+    # a point belongs to a flat run when the step into or out of it is flat
+    same[1:] |= step
+    same[:-1] |= step
+    runs = contiguous_segments(same)
+    longest = max(((b - a - 1) * aligned.sample_time for a, b in runs), default=0.0)
+    min_pts = max(LIMITS["frozen_min_points"],
+                  int(math.ceil(LIMITS["frozen_min_s"] / aligned.sample_time)))
+    frozen = sum(b - a for a, b in runs if b - a >= min_pts)
+    return _pct(frozen, ok.sum()), float(longest)
+
+
+def _saturation(aligned: AlignedLoop) -> float | None:
+    op = aligned.op
+    if op is None:
+        return None
+    ok = aligned.role_valid["op"]
+    if not ok.any():
+        return float("nan")
+    tol = LIMITS["op_limit_tol"]
+    sat = ok & ((op <= tol) | (op >= 100.0 - tol))
+    lo, hi = np.nanmin(op[ok]), np.nanmax(op[ok])
+    if hi - lo > 1e-9 * max(abs(hi), 1.0):
+        eps = 1e-9 * (hi - lo)
+        min_pts = max(LIMITS["saturation_min_points"],
+                      int(math.ceil(LIMITS["saturation_min_s"] / aligned.sample_time)))
+        for edge in (lo, hi):
+            for a, b in _runs(ok & (np.abs(op - edge) <= eps), min_pts):
+                sat[a:b] = True
+    return _pct(sat.sum(), ok.sum())
+
+
+def _manual(aligned: AlignedLoop) -> tuple[float | None, str | None]:
+    if aligned.mode is None:
+        return None, None
+    text = np.array([str(m).strip().upper() if m is not None else "" for m in aligned.mode])
+    manual = np.isin(text, list(MANUAL_MODES))
+    auto = np.isin(text, list(AUTO_MODES))
+    known = manual | auto
+    if not known.any():
+        seen = sorted({t for t in text if t})[:3]
+        return None, (f"mode tag values not understood ({', '.join(seen)}); manual time unknown"
+                      if seen else "mode tag has no data in the window")
+    return _pct(manual.sum(), known.sum()), None
+
+
+def _pv_raw_stats(pv: pl.DataFrame) -> tuple[float, float, float, float | None]:
+    """(median spacing [s], spacing spread, repeat fraction, resolution) of raw PV."""
+    t = np.unique(_ts_seconds(pv))
+    d = np.diff(t)
+    med = float(np.median(d)) if d.size else float("nan")
+    spread = float(np.percentile(d, 90) / np.percentile(d, 10)) if d.size >= 10 else 1.0
+    v = pv.sort("ts")["value"].drop_nulls().to_numpy()
+    dv = np.abs(np.diff(v)) if v.size > 1 else np.empty(0)
+    repeat = float(np.mean(dv == 0)) if dv.size else float("nan")
+    nz = dv[dv > 0]
+    resolution = float(nz.min()) if nz.size else None
+    return med, spread, repeat, resolution
+
+
+def quality_metrics(aligned: AlignedLoop, frames: Mapping[str, pl.DataFrame], *,
+                    span: float | None = None) -> DataQuality:
+    """Measure the data quality of one loop.
+
+    Parameters
+    ----------
+    aligned : AlignedLoop
+        Output of :func:`valvediag.align.align_loop` for ``frames``.
+    frames : mapping of str to polars.DataFrame
+        The raw samples by role (``ts``, ``value``, ``status``), as given to
+        ``align_loop``.
+    span : float, optional
+        PV span [PV unit]; sets the tolerance of the frozen test and allows the
+        resolution check. NaN or None: exact equality, no resolution check.
+
+    Returns
+    -------
+    DataQuality
+
+    Notes
+    -----
+    Limits are in :data:`LIMITS`. Frozen runs and OP saturation at its own
+    min/max must last at least ``frozen_min_points`` grid points and
+    ``frozen_min_s`` (600 s), resp. ``saturation_min_points`` and
+    ``saturation_min_s`` (60 s). A constant OP (manual mode or a frozen
+    signal) is not counted as saturation. Manual time is time-weighted on the
+    grid with the held mode; texts outside :data:`MANUAL_MODES` and
+    :data:`AUTO_MODES` are left out of the share.
+    """
+    span = None if span is None or not math.isfinite(span) else float(span)
+    issues: list[str] = []
+    rows = {role: f.height for role, f in frames.items()}
+    bad = {role: int(f["value"].null_count()) for role, f in frames.items()
+           if role in ("pv", "op", "sp", "mv")}
+    bad_by_role = {role: _pct(bad[role], rows[role]) for role in bad}
+    core = [r for r in ("pv", "op") if r in frames]
+    bad_pct = _pct(sum(bad[r] for r in core), sum(rows[r] for r in core))
+
+    pv = frames.get("pv")
+    if pv is None or pv.height == 0 or aligned.n == 0:
+        issues.append("no PV data")
+    valid_pct = _pct(aligned.valid.sum(), aligned.n)
+
+    gaps = [g for r in core for g in _gaps(frames[r], aligned)] if aligned.n else []
+    frozen_pct, longest_frozen = _frozen(aligned, span)
+    med, spread, repeat, resolution = (_pv_raw_stats(pv) if pv is not None and pv.height
+                                       else (float("nan"), float("nan"), float("nan"), None))
+    ratio = rows.get("pv", 0) / aligned.n if aligned.n else float("nan")
+    step_held = (repeat > LIMITS["repeat_fraction"]) and resolution is not None
+    compressed = bool(
+        (med > LIMITS["spacing_ratio"] * aligned.sample_time)
+        or (spread > LIMITS["spacing_spread"]) or step_held)
+    saturation = _saturation(aligned)
+    manual, mode_issue = _manual(aligned)
+
+    if bad_pct > LIMITS["bad_pct"]:
+        issues.append(f"{bad_pct:.1f}% of PV/OP rows are bad states")
+    if aligned.n and valid_pct < LIMITS["valid_pct"]:
+        issues.append(f"only {valid_pct:.1f}% of the window is usable")
+    if gaps:
+        issues.append(f"{len(gaps)} gaps in PV/OP, longest {max(gaps):.0f} s")
+    if frozen_pct > 0:
+        issues.append(f"PV frozen (identical values) for {frozen_pct:.1f}% of the time, "
+                      f"longest {longest_frozen:.0f} s")
+    if step_held:
+        issues.append(f"PV values look step-held ({100 * repeat:.0f}% of consecutive "
+                      f"samples repeat)")
+    if compressed and not step_held:
+        issues.append(f"PV looks compressed (median spacing {med:.3g} s, grid "
+                      f"{aligned.sample_time:.3g} s, spacing spread {spread:.1f}); "
+                      f"waveform shape may be distorted")
+    if saturation is not None and saturation > LIMITS["saturation_pct"]:
+        issues.append(f"OP saturated for {saturation:.1f}% of the time")
+    if manual is not None and manual > LIMITS["manual_pct"]:
+        issues.append(f"loop in manual for {manual:.1f}% of the time")
+    if mode_issue:
+        issues.append(mode_issue)
+    if span and resolution is not None and resolution > LIMITS["resolution_pct"] / 100 * span:
+        issues.append(f"coarse PV resolution ({resolution:.3g}, "
+                      f"{100 * resolution / span:.2f}% of span)")
+
+    return DataQuality(
+        rows=rows, bad_pct=bad_pct, bad_pct_by_role=bad_by_role, valid_pct=valid_pct,
+        gap_count=len(gaps), longest_gap_s=float(max(gaps, default=0.0)),
+        frozen_pct=frozen_pct, longest_frozen_s=longest_frozen, compression_ratio=ratio,
+        median_spacing_s=med, spacing_spread=spread, repeat_fraction=repeat,
+        compressed=compressed, saturation_pct=saturation, manual_pct=manual,
+        pv_resolution=resolution, sample_time=aligned.sample_time, issues=tuple(issues))
