@@ -12,8 +12,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 
 from valvediag.ingest import (
-    QUARANTINE_SCHEMA, SAMPLE_SCHEMA, ExportError, expand_paths, ingest_exports,
-    parse_export, read_export,
+    QUARANTINE_SCHEMA, SAMPLE_SCHEMA, ExportError, _write_parsed, expand_paths,
+    ingest_exports, iter_export, parse_export, read_export,
 )
 from valvediag.store import Store
 
@@ -435,3 +435,61 @@ def test_many_files_stream_one_at_a_time(tmp_path):
         assert store.counts()["samples"] == 600
         assert store.tags() == ["T0", "T1", "T2"]
     assert report.ok and report.files == 12 and report.rows_inserted == 600
+
+
+# --- slicing large files ------------------------------------------------------------
+SLICED = ("tag,timestamp,value\n"
+          "A,2024-01-01T00:00:00Z,1\n"
+          "A,2024-01-01T00:00:01Z,2\n"
+          "B,2024-01-01T00:00:00Z,3\n"
+          "A,2024-01-01T00:00:00Z,1\n"       # exact duplicate of line 2, next slice
+          "A,2024-01-01T00:00:01Z,9\n"       # conflicts with line 3, next slice
+          "B,2024-01-01T00:00:01Z,I/O Timeout\n"
+          "B,garbage,1\n")
+
+
+@pytest.mark.parametrize("chunk_rows", [None, 1, 3, 100])
+def test_slice_size_does_not_change_what_is_stored(tmp_path, chunk_rows):
+    path = write(tmp_path, "s.csv", SLICED)
+    with Store(tmp_path / "s.duckdb") as store:
+        report = ingest_exports(store, [path], chunk_rows=chunk_rows)
+        samples = store.query("tag_window", tag="A", start=None, end=None)
+        quarantine = store.quarantine()
+        assert store.counts()["samples"] == 4
+    assert samples["value"].to_list() == [1.0, 2.0]
+    assert report.rows_inserted == 4 and report.rows_skipped_duplicate == 1
+    assert quarantine["line"].to_list() == [6, 8]
+    assert quarantine["reason"][0].startswith("duplicate timestamp with a different value")
+
+
+def test_naive_rows_in_a_later_slice_are_quarantined_like_a_mixed_file(tmp_path):
+    path = write(tmp_path, "f.csv", "tag,timestamp,value\nA,2024-01-01T00:00:00Z,1\n"
+                                    "A,2024-01-01 00:00:01,2\n")
+    whole = parse_export(path)
+    with Store(tmp_path / "s.duckdb") as store:
+        report = ingest_exports(store, [path], chunk_rows=1)
+        q = store.quarantine()
+        assert store.counts()["samples"] == 1
+    assert report.ok and q["line"].to_list() == whole.quarantine["line"].to_list() == [3]
+    assert "no UTC offset" in q["reason"][0]
+
+
+def test_all_naive_first_slice_fails_before_anything_is_written(tmp_path):
+    path = write(tmp_path, "f.csv", "tag,timestamp,value\nA,2024-01-01 00:00:00,1\n"
+                                    "A,2024-01-01T00:00:01Z,2\n")
+    with Store(tmp_path / "s.duckdb") as store:
+        report = ingest_exports(store, [path], chunk_rows=1)
+        assert store.counts()["samples"] == 0 and store.counts()["ingested_files"] == 0
+    assert len(report.errors) == 1 and "no UTC offset" in report.errors[0]
+
+
+def test_interrupted_file_is_completed_by_the_next_run(tmp_path):
+    path = write(tmp_path, "s.csv", SLICED)
+    with Store(tmp_path / "s.duckdb") as store:
+        first = next(iter_export(path, chunk_rows=3))   # as if the run died after slice 1
+        with store.transaction():
+            _write_parsed(store, first)
+        assert store.counts()["ingested_files"] == 0
+        report = ingest_exports(store, [path], chunk_rows=3)
+        assert store.counts()["samples"] == 4 and store.duplicate_keys() == 0
+    assert report.rows_inserted == 4 - first.samples.height

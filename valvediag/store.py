@@ -236,21 +236,19 @@ class Store:
         """True when a file with this content hash was ingested before."""
         return bool(self.query("ingested_file_known", sha256=sha256)["known"][0])
 
-    def stored_matches(self, samples: pl.DataFrame) -> pl.DataFrame:
-        """Incoming samples whose (tag, ts) is already stored.
+    def conflicting_samples(self, samples: pl.DataFrame) -> pl.DataFrame:
+        """Incoming samples whose (tag, ts) is stored with a different value or status.
 
         Returns
         -------
         polars.DataFrame
-            ``source_line, tag, same (bool: value and status agree),
-            stored_file, stored_line``.
+            ``source_line, tag, stored_file, stored_line``.
         """
         if samples.is_empty():
             return pl.DataFrame(schema={"source_line": pl.Int64, "tag": pl.String,
-                                        "same": pl.Boolean, "stored_file": pl.String,
-                                        "stored_line": pl.Int64})
+                                        "stored_file": pl.String, "stored_line": pl.Int64})
         with self._registered("incoming_samples", samples):
-            return self.query("samples_match_stored", ts_min=samples["ts"].min(),
+            return self.query("samples_conflicting", ts_min=samples["ts"].min(),
                               ts_max=samples["ts"].max())
 
     def insert_new_samples(self, samples: pl.DataFrame) -> int:
