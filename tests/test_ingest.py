@@ -73,8 +73,8 @@ def test_column_aliases_are_case_insensitive(tmp_path):
 
 
 def test_state_and_flag_on_one_row_are_both_kept(tmp_path):
-    path = write(tmp_path, "a.csv",
-                 'tag,timestamp,value,status\n"T1","2024-01-01T00:00:00Z","Bad Input","Substituted"\n')
+    path = write(tmp_path, "a.csv", 'tag,timestamp,value,status\n'
+                                    '"T1","2024-01-01T00:00:00Z","Bad Input","Substituted"\n')
     samples, _ = read_export(path)
     assert samples.select("value", "status").row(0) == (None, "Bad Input; Substituted")
 
@@ -105,6 +105,26 @@ def test_nan_text_is_a_bad_sample_not_a_number(tmp_path):
     samples, quarantine = read_export(path)
     assert quarantine.is_empty()
     assert samples.select("value", "status").row(0) == (None, "NaN")
+
+
+def test_windows_export_crlf_and_latin1(tmp_path):
+    path = tmp_path / "win.csv"
+    path.write_bytes(b"tag,timestamp,value\r\nT\xb0C,2024-01-01T00:00:00.123456789Z,1\r\n"
+                     b"A,2024-01-01T00:00:01Z,Bad Input\r\n")
+    parsed = parse_export(path)
+    assert parsed.quarantine.is_empty()
+    assert by_key(parsed.samples) == {
+        ("T\u00b0C", utc(2024, 1, 1, 0, 0, 0, 123456)): (1.0, None),  # ns truncated to us
+        ("A", utc(2024, 1, 1, 0, 0, 1)): (None, "Bad Input")}
+    assert any("read as Latin-1" in n for n in parsed.notes)
+
+
+def test_epoch_seconds_file(tmp_path):
+    path = write(tmp_path, "e.csv", "tag,timestamp,value\n" + "".join(
+        f"A,{1704067200 + s},{s}\n" for s in range(5)) + "A,17040672xx,9\n")
+    samples, quarantine = read_export(path)
+    assert samples["ts"].to_list() == [utc(2024, 1, 1, 0, 0, s) for s in range(5)]
+    assert quarantine["reason"].to_list() == ["unparseable timestamp '17040672xx'"]
 
 
 # --- wide CSV ---------------------------------------------------------------
@@ -332,7 +352,8 @@ bad_line = st.sampled_from(["A,xx,1", ",2024-01-01T00:00:00Z,1", "A,2024-01-01T0
                             "A,2024-01-01T00:00:00Z", "A,2024-01-01 00:00:00,1", "junk"])
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(lines=st.lists(st.one_of(good_line, bad_line), min_size=1, max_size=40))
 def test_every_line_is_stored_quarantined_or_counted_duplicate(tmp_path, lines):
     # one row with an offset, so an all-naive file (a whole-file error) cannot occur

@@ -109,3 +109,33 @@ def test_a_registry_tag_absent_from_the_exports_is_detectable(tmp_path):
     assert missing["FIC101"] == {"sp": "FIC101.SP"}
     assert missing["LIC200"] == {"op": "LIC200.OP"}
     assert missing["TIC300"] == {"op": "TIC300.OP"}  # and no PV tag at all (an issue)
+
+
+@pytest.mark.parametrize("module", ["valvediag.ingest", "valvediag.store", "valvediag.registry",
+                                    "valvediag.align", "valvediag.quality"])
+def test_public_functions_document_their_parameters(module):
+    """Like python-control: every public callable names each parameter in its docstring."""
+    import dataclasses
+    import importlib
+    import inspect
+
+    mod = importlib.import_module(module)
+    missing = {}
+    for name in mod.__all__:
+        obj = getattr(mod, name)
+        if inspect.isclass(obj) and obj.__module__ == module:
+            targets = [(f"{name}.{m}", f) for m, f in vars(obj).items()
+                       if inspect.isfunction(f) and not m.startswith("_")]
+            if not dataclasses.is_dataclass(obj) and not issubclass(obj, Exception):
+                targets.append((name, obj))
+        elif inspect.isfunction(obj):
+            targets = [(name, obj)]
+        else:
+            continue
+        for label, f in targets:
+            doc = inspect.getdoc(f) or ""
+            params = [p for p in inspect.signature(f).parameters if p not in ("self", "cls")]
+            lost = [p for p in params if p not in doc]
+            if not doc or lost:
+                missing[label] = lost or "no docstring"
+    assert missing == {}

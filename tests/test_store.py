@@ -173,6 +173,15 @@ def test_results_of_a_finished_run_cannot_change(store):
         store.finish_run("ghost")
 
 
+def test_verdicts_as_mappings_may_omit_different_keys(store):
+    run_id = store.start_run()
+    rows = [{"loop": f"L{i}", "verdict": "no-oscillation"} for i in range(150)]
+    rows.append({"loop": "LAST", "verdict": "stiction", "bi": 0.2, "reason": "late key"})
+    store.write_results(run_id, verdicts=rows)
+    last = store.verdicts(run_id).filter(pl.col("loop") == "LAST").row(0, named=True)
+    assert (last["bi"], last["reason"]) == (0.2, "late key")
+
+
 @pytest.mark.parametrize("bad, match", [
     ([{"loop": "A", "verdict": "sticky"}], "unknown verdict values"),
     ([{"loop": "A", "verdict": "stiction", "colour": "red"}], r"unknown columns \['colour'\]"),

@@ -139,7 +139,19 @@ class AlignedLoop:
 
 
 def to_epoch_us(ts: pl.Series) -> np.ndarray:
-    """Datetime series -> int64 microseconds since the epoch (UTC; naive taken as UTC)."""
+    """Microseconds since the epoch of a datetime series.
+
+    Parameters
+    ----------
+    ts : polars.Series
+        Datetime of any unit; timezone-aware is converted to UTC, naive is
+        taken as UTC.
+
+    Returns
+    -------
+    numpy.ndarray
+        int64 [us].
+    """
     if ts.dtype == pl.Null:  # an empty frame built without a schema
         ts = ts.cast(pl.Datetime("us", "UTC"))
     if ts.dtype.time_zone is not None:  # type: ignore[union-attr]
@@ -166,7 +178,18 @@ def _prepare(frame: pl.DataFrame, role: str) -> pl.DataFrame:
 
 
 def median_spacing(ts_us: np.ndarray) -> float:
-    """Median of the positive intervals between time stamps [s]; NaN if < 2."""
+    """Median of the positive intervals between time stamps [s].
+
+    Parameters
+    ----------
+    ts_us : numpy.ndarray
+        Time stamps [us since the epoch], any order; repeats are ignored.
+
+    Returns
+    -------
+    float
+        NaN with fewer than two distinct time stamps.
+    """
     d = np.diff(np.unique(ts_us))
     return float(np.median(d)) / _US if d.size else float("nan")
 

@@ -35,6 +35,8 @@ Rules that hold for every reader
 * Within one file, exact duplicate samples are dropped and counted; a second
   sample for the same (tag, time stamp) with a different value or status is
   quarantined with the reason "duplicate timestamp with a different value".
+  Across files (and across the slices of a large file) the store does the
+  same: the sample stored first wins.
 
 Notes
 -----
@@ -311,9 +313,11 @@ def _detect_layout(columns: Sequence[str], path: str) -> _Layout:
         status_col = pick(_STATUS_NAMES)
         conf_col = pick(_CONFIDENCE_NAMES)
         if value_col is None:
-            raise ExportError(f"{path}: long export without a value column; columns found: {found}")
+            raise ExportError(f"{path}: long export without a value column; "
+                              f"columns found: {found}")
         if status_col and conf_col:
-            raise ExportError(f"{path}: both a status and a confidence column; columns found: {found}")
+            raise ExportError(f"{path}: both a status and a confidence column; "
+                              f"columns found: {found}")
         known = {time_col, tag_col, value_col, status_col, conf_col}
         unknown = [c for c in columns if c not in known]
         if unknown:
@@ -421,7 +425,16 @@ def _parse_time_column(text: pl.Series) -> pl.DataFrame:
         n = sample.str.to_datetime(fmt, strict=False, time_unit="us", time_zone=tz).count()
         if n > hits:
             best, hits = (fmt, kind, tz), n
-    if best is None:
+    if best is None and sample.len() and sample.str.contains(_EPOCH_RE).mean() > 0.5:
+        sec = pl.when(pl.col("t").str.contains(_EPOCH_RE)).then(
+            pl.col("t").cast(pl.Float64, strict=False))
+        out = pl.DataFrame({"t": text}).select(
+            utc=pl.when(sec.abs() < _EPOCH_MAX_S)
+            .then((sec * 1e6).round().cast(pl.Int64).cast(_TIME_COLUMNS["utc"])),
+            naive=pl.lit(None, _TIME_COLUMNS["naive"]))
+        out = out.with_columns(kind=pl.when(pl.col("utc").is_not_null()).then(pl.lit("epoch")),
+                               ts_reason=pl.lit(None, pl.String))
+    elif best is None:
         out = pl.DataFrame({c: pl.Series([None] * len(text), dtype=t)
                             for c, t in _TIME_COLUMNS.items()})
     else:
@@ -624,10 +637,6 @@ def _split_fields(rows: pl.DataFrame, n: int, sep: str) -> tuple[pl.DataFrame, p
 # --------------------------------------------------------------------------
 # long / wide normalisation
 # --------------------------------------------------------------------------
-def _empty_quarantine() -> pl.DataFrame:
-    return pl.DataFrame(schema=QUARANTINE_SCHEMA)
-
-
 def _long_samples(frame: pl.DataFrame, lay: _Layout, path: str, timezone: str | None,
                   states: frozenset[str], decimal_comma: bool, naive_error: bool
                   ) -> tuple[pl.DataFrame, pl.DataFrame]:
@@ -959,6 +968,12 @@ def expand_paths(paths_or_globs: str | os.PathLike | Iterable[str | os.PathLike]
                  ) -> tuple[list[str], list[str]]:
     """Expand globs and directories into a sorted, de-duplicated file list.
 
+    Parameters
+    ----------
+    paths_or_globs : str, path-like or iterable of them
+        Files, directories (their files, not recursive) or glob patterns
+        (``**`` recursive).
+
     Returns
     -------
     files : list of str
@@ -987,7 +1002,15 @@ def expand_paths(paths_or_globs: str | os.PathLike | Iterable[str | os.PathLike]
 
 
 def file_sha256(path: str | os.PathLike, chunk: int = 1 << 22) -> str:
-    """SHA-256 of a file, read in chunks [hex digest]."""
+    """SHA-256 of a file's content [hex digest].
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+    chunk : int, default 4 MiB
+        Bytes read at a time [bytes].
+    """
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         while block := fh.read(chunk):

@@ -136,7 +136,8 @@ def _result_frame(rows, columns: dict[str, pl.DataType], run_id: str, what: str
                     r[c] = _to_json(r[c])
         frame = pl.DataFrame(records, schema_overrides={k: v for k, v in columns.items()
                                                         if any(k in r for r in records)},
-                             strict=False) if records else pl.DataFrame(schema=columns)
+                             strict=False, infer_schema_length=None
+                             ) if records else pl.DataFrame(schema=columns)
     unknown = [c for c in frame.columns if c not in columns and c != "run_id"]
     if unknown:
         raise ValueError(f"{what}: unknown columns {unknown}; expected {list(columns)}")
@@ -196,7 +197,15 @@ class Store:
         self.close()
 
     def query(self, name: str, **params) -> pl.DataFrame:
-        """Run the named read query ``sql/<name>.sql`` and return a polars frame."""
+        """Run the named read query ``sql/<name>.sql`` and return a polars frame.
+
+        Parameters
+        ----------
+        name : str
+            File stem in ``sql/``, e.g. ``"new_since_last_run"``.
+        **params
+            Values of the query's ``$name`` parameters (exactly those it uses).
+        """
         return self.con.sql(load_sql(name), params=params or None).pl()
 
     def _run(self, name: str, **params) -> int | None:
@@ -233,7 +242,13 @@ class Store:
 
     # -- ingest ------------------------------------------------------------
     def file_known(self, sha256: str) -> bool:
-        """True when a file with this content hash was ingested before."""
+        """True when a file with this content hash was ingested before.
+
+        Parameters
+        ----------
+        sha256 : str
+            Hex digest of the file content.
+        """
         return bool(self.query("ingested_file_known", sha256=sha256)["known"][0])
 
     def conflicting_samples(self, samples: pl.DataFrame) -> pl.DataFrame:
@@ -268,7 +283,18 @@ class Store:
 
     def record_ingested_file(self, path: str, sha256: str, *, rows: int, rows_inserted: int,
                              duplicates: int, quarantined: int) -> None:
-        """Remember that a file was ingested (path, content hash, counts)."""
+        """Remember that a file was ingested.
+
+        Parameters
+        ----------
+        path : str
+            Absolute path.
+        sha256 : str
+            Hex digest of the content.
+        rows, rows_inserted, duplicates, quarantined : int
+            Samples parsed, newly stored, skipped as exact duplicates, and
+            quarantine rows of the file [rows].
+        """
         self._run("ingested_file_record", path=path, sha256=sha256, rows=rows,
                   rows_inserted=rows_inserted, duplicates=duplicates, quarantined=quarantined)
 
@@ -277,7 +303,13 @@ class Store:
         return self.query("ingested_files")
 
     def quarantine(self, source_file: str | None = None) -> pl.DataFrame:
-        """Quarantined rows, optionally of one file."""
+        """Quarantined rows, by file and line.
+
+        Parameters
+        ----------
+        source_file : str, optional
+            Only this file (absolute path, as stored).
+        """
         return self.query("quarantine_rows", source_file=source_file)
 
     def duplicate_keys(self) -> int:
@@ -320,8 +352,19 @@ class Store:
                    end: dt.datetime | None = None) -> dict[str, pl.DataFrame]:
         """The samples of every tag of a loop, by role (``pv``, ``op``, ...).
 
-        Set point and mode include the last sample before ``start``. A tag with
-        no data gives an empty frame; :meth:`missing_tags` names those.
+        Parameters
+        ----------
+        loop : LoopSpec
+            The loop; roles without a tag are left out.
+        start, end : datetime, optional
+            Timezone-aware window ``[start, end)``; None is open.
+
+        Returns
+        -------
+        dict of str to polars.DataFrame
+            Role -> ``ts, value, status`` as :meth:`fetch_tag`. Set point and
+            mode include the last sample before ``start``. A tag with no data
+            gives an empty frame; :meth:`missing_tags` names those.
         """
         return {role: self.fetch_tag(tag, start, end, include_previous=role in _HELD_ROLES)
                 for role, tag in loop.tags.items()}
@@ -329,6 +372,13 @@ class Store:
     def missing_tags(self, loop: LoopSpec, start: dt.datetime | None = None,
                      end: dt.datetime | None = None) -> dict[str, str]:
         """Roles whose tag has no sample at all (in ``[start, end)`` when given).
+
+        Parameters
+        ----------
+        loop : LoopSpec
+            The loop to check.
+        start, end : datetime, optional
+            Timezone-aware window; None is open.
 
         Returns
         -------
@@ -375,7 +425,16 @@ class Store:
                   params: Mapping | None = None, run_id: str | None = None) -> str:
         """Register a scan with status ``running``; return its run id.
 
-        ``run_id`` defaults to ``<UTC time>-<8 hex>``, which sorts by time.
+        Parameters
+        ----------
+        window_start, window_end : datetime, optional
+            Timezone-aware analysis window of the scan.
+        exports : str or sequence of str, optional
+            The exports or globs the scan read (joined with ``;``).
+        params : mapping, optional
+            Scan parameters, stored as JSON (NaN -> null).
+        run_id : str, optional
+            Default ``<UTC time>-<8 hex>``, which sorts by time.
         """
         if run_id is None:
             now = dt.datetime.now(dt.timezone.utc)
@@ -388,7 +447,18 @@ class Store:
         return run_id
 
     def run(self, run_id: str) -> dict:
-        """One run's row as a dict. Raises KeyError when unknown."""
+        """One run's row as a dict.
+
+        Parameters
+        ----------
+        run_id : str
+            The run.
+
+        Raises
+        ------
+        KeyError
+            No such run.
+        """
         frame = self.query("run_get", run_id=run_id)
         if frame.is_empty():
             raise KeyError(f"no run {run_id!r} in {self.path}")
@@ -399,7 +469,15 @@ class Store:
         return self.query("runs_all")
 
     def finish_run(self, run_id: str, status: str = "complete") -> None:
-        """Mark a run ``complete`` or ``failed`` and stamp ``finished_at``."""
+        """Mark a run ``complete`` or ``failed`` and stamp ``finished_at``.
+
+        Parameters
+        ----------
+        run_id : str
+            The run (KeyError when unknown).
+        status : {"complete", "failed"}
+            Only complete runs count as history.
+        """
         if status not in ("complete", "failed"):
             raise ValueError(f"run status must be 'complete' or 'failed', not {status!r}")
         self.run(run_id)
@@ -445,15 +523,33 @@ class Store:
                 self._run("verdicts_insert")
 
     def verdicts(self, run_id: str | None = None) -> pl.DataFrame:
-        """Verdicts of a run (default: the latest complete run), by rank."""
+        """Verdicts of a run, by rank.
+
+        Parameters
+        ----------
+        run_id : str, optional
+            Default: the latest complete run.
+        """
         return self.query("run_verdicts", run_id=run_id)
 
     def episodes(self, run_id: str) -> pl.DataFrame:
-        """Episodes of a run, by loop and start."""
+        """Episodes of a run, by loop and start.
+
+        Parameters
+        ----------
+        run_id : str
+            The run.
+        """
         return self.query("run_episodes", run_id=run_id)
 
     def verdict_history(self, loop: str) -> pl.DataFrame:
-        """A loop's verdicts over all complete runs, oldest first."""
+        """A loop's verdicts over all complete runs, oldest first.
+
+        Parameters
+        ----------
+        loop : str
+            Loop name.
+        """
         return self.query("verdict_history", loop=loop)
 
     def new_since_last_run(self) -> pl.DataFrame:
