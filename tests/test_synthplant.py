@@ -1,0 +1,389 @@
+"""Tests for valvediag.synthplant: the synthetic plant generator."""
+from __future__ import annotations
+
+import hashlib
+import time
+
+import numpy as np
+import polars as pl
+import pytest
+
+from valvediag import synthplant as sp
+from valvediag.synthplant import (
+    DIGITAL_STATES, EXPORT_COLUMNS, LOOPS_COLUMNS, TRUTH_COLUMNS, TRUTH_VERDICTS,
+    exception_deadband, swinging_door, synth_plant,
+)
+
+# A small plant: 16 loops, 3 h at 2 s. Periods are then 60-720 s (>= 30 samples,
+# >= 15 cycles).
+N_LOOPS, DAYS, TS, SEED = 16, 0.125, 2.0, 7
+
+
+@pytest.fixture(scope="module")
+def plant_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("plant")
+    t0 = time.perf_counter()
+    p = synth_plant(N_LOOPS, DAYS, TS, out, seed=SEED)
+    return p, time.perf_counter() - t0
+
+
+@pytest.fixture(scope="module")
+def plant(plant_run):
+    return plant_run[0]
+
+
+@pytest.fixture(scope="module")
+def samples(plant):
+    """All long-CSV rows, parsed, with a numeric column ``x`` (null for states)."""
+    frames = [pl.read_csv(f, schema_overrides={c: pl.String for c in EXPORT_COLUMNS})
+              for f in plant.exports]
+    df = pl.concat(frames)
+    return df.with_columns(
+        pl.col("timestamp").str.to_datetime("%Y-%m-%dT%H:%M:%S%:z", time_zone="UTC").alias("t"),
+        pl.col("value").cast(pl.Float64, strict=False).alias("x"),
+    )
+
+
+def _series(samples, tag):
+    d = samples.filter(pl.col("tag") == tag).sort("t")
+    t = d["t"].dt.epoch("ms").to_numpy() / 1000.0
+    return t, d["x"].to_numpy(), d
+
+
+def _segment(t, x, ts):
+    """The longest usable stretch of a tag, on a uniform grid.
+
+    Breaks at digital states (which also mark gaps on compressed tags) and,
+    on sampled tags, at holes of more than 60 s; linear interpolation inside.
+    """
+    sampled = np.median(np.diff(t)) <= ts
+    brk = ~np.isfinite(x)
+    if sampled:
+        brk[1:] |= np.diff(t) > 60.0
+    edges = np.r_[0, np.flatnonzero(brk), x.size]
+    i = int(np.argmax(np.diff(edges)))
+    a, b = edges[i], edges[i + 1]
+    if not np.isfinite(x[a]):
+        a += 1
+    grid = np.arange(t[a], t[b - 1], ts)
+    return grid, np.interp(grid, t[a:b], x[a:b])
+
+
+def _deviation(samples, loop, ts):
+    """PV minus the step-held SP on a uniform grid (removes operator set-point moves)."""
+    t, x, _ = _series(samples, loop + ".PV")
+    grid, y = _segment(t, x, ts)
+    ts_sp, x_sp, _ = _series(samples, loop + ".SP")
+    ok = np.isfinite(x_sp)
+    k = np.searchsorted(ts_sp[ok], grid, side="right") - 1
+    return grid, y - x_sp[ok][np.clip(k, 0, None)]
+
+
+def _acf_period(y, ts):
+    """Period from the first autocorrelation peak after the first zero crossing [s]."""
+    y = y - y.mean()
+    n = y.size
+    f = np.fft.rfft(y, 2 * n)
+    r = np.fft.irfft(f * np.conj(f))[:n]
+    r /= r[0]
+    z = np.flatnonzero(r < 0)
+    if z.size == 0:
+        return np.nan, 0.0
+    k0 = z[0]
+    k = k0 + int(np.argmax(r[k0:n // 2]))
+    return k * ts, float(r[k])
+
+
+# ---------------------------------------------------------------- contracts
+
+def test_files_and_columns(plant):
+    assert plant.loops_csv.exists() and plant.truth_csv.exists()
+    assert len(plant.exports) >= 1 and all(f.exists() for f in plant.exports)
+    loops = pl.read_csv(plant.loops_csv)
+    truth = pl.read_csv(plant.truth_csv)
+    assert tuple(loops.columns) == LOOPS_COLUMNS
+    assert tuple(truth.columns) == TRUTH_COLUMNS
+    assert loops.height == truth.height == N_LOOPS
+    for f in plant.exports:
+        head = pl.read_csv(f, n_rows=5, infer_schema=False)
+        assert tuple(head.columns) == EXPORT_COLUMNS
+    assert set(truth["truth_verdict"]) <= set(TRUTH_VERDICTS)
+    assert set(truth["process_type"]) <= {"integrating", "self-regulating"}
+    assert set(loops["process_type"]) <= {"integrating", "self-regulating", "unknown"}
+    assert "unknown" in set(loops["process_type"])
+    assert set(truth["valve"]) <= {"kano", "backlash", "linear"}
+
+
+def test_timestamps_iso_with_offset(samples):
+    ts = samples["timestamp"]
+    assert ts.str.contains(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?[+-]\d\d:\d\d$").all()
+    assert samples["t"].null_count() == 0
+    assert samples["t"].min() == pl.Series(["2026-11-01T00:00:00+00:00"]).str.to_datetime(
+        time_zone="UTC")[0]
+
+
+def test_truth_and_loops_agree(plant, samples):
+    loops, truth = plant.loops, plant.truth
+    assert loops["loop"].to_list() == truth["loop"].to_list()
+    assert loops["loop"].n_unique() == N_LOOPS
+    # the types in loops.csv are right or 'unknown'
+    j = loops.join(truth, on="loop", suffix="_truth")
+    assert ((j["process_type"] == j["process_type_truth"]) | (j["process_type"] == "unknown")).all()
+    # every exported tag is registered; every registered tag is exported, except missing PVs
+    tags = set(samples["tag"].unique())
+    registered = set(loops["pv_tag"]) | set(loops["op_tag"]) | set(loops["sp_tag"]) | \
+        set(loops["mv_tag"].drop_nulls())
+    assert tags <= registered
+    missing = registered - tags
+    bad = set(truth.filter(pl.col("truth_verdict") == "insufficient-data")["loop"])
+    assert all(t.split(".")[0] in bad for t in missing)
+    assert any(t.endswith(".PV") for t in missing), "the PV-missing case is absent"
+    # loop names follow the tag prefix and the process type
+    for row in j.iter_rows(named=True):
+        assert row["pv_tag"] == row["loop"] + ".PV"
+        if row["loop"].startswith(("FIC", "TIC")):
+            assert row["process_type_truth"] == "self-regulating"
+
+
+def test_every_category_present(plant):
+    counts = dict(plant.truth.group_by("truth_verdict").len().iter_rows())
+    assert set(counts) == set(TRUTH_VERDICTS)
+    assert counts["no-oscillation"] >= 2  # healthy integrating and self-regulating
+
+
+@pytest.mark.parametrize("n", [1, 3, 7, 20, 200])
+def test_allocation_shares(n):
+    cats = sp._allocate(n, np.random.default_rng(0))
+    assert len(cats) == n
+    got = {c: cats.count(c) for c in sp.CATEGORY_SHARES}
+    if n >= 7:
+        assert min(got.values()) >= 1
+    if n == 200:
+        assert got == {"stiction": 40, "backlash": 30, "linear-oscillation": 20, "healthy": 50,
+                       "selfreg-stiction": 15, "selfreg-healthy": 15, "bad-data": 30}
+    if n == 3:
+        assert sorted(cats) == ["backlash", "healthy", "stiction"]
+
+
+def test_span_and_units_consistent(plant, samples):
+    truth = plant.truth
+    usable = truth.filter(pl.col("truth_verdict") != "insufficient-data")["loop"]
+    for row in plant.loops.filter(pl.col("loop").is_in(usable.implode())).iter_rows(named=True):
+        x = samples.filter(pl.col("tag") == row["pv_tag"])["x"].drop_nulls()
+        assert x.len() > 0
+        assert x.max() - x.min() < 0.3 * row["span"], row["loop"]
+        assert x.min() >= 0.0
+        if row["unit"] == "%":
+            assert 0 < x.min() and x.max() < 100
+        op = samples.filter(pl.col("tag") == row["op_tag"])["x"].drop_nulls()
+        assert 0 < op.min() and op.max() < 100
+    amp = truth.filter(pl.col("amplitude").is_not_null()).join(plant.loops, on="loop")
+    rel = amp["amplitude"] / amp["span"]
+    assert ((rel > 0.002) & (rel < 0.1)).all()
+
+
+# ---------------------------------------------------------------- artefacts
+
+def test_artefacts_present(plant, samples):
+    states = samples.filter(pl.col("x").is_null())["value"]
+    assert states.len() > 0
+    assert set(states.unique()) <= set(DIGITAL_STATES)
+    assert "Shutdown" in set(states)
+    assert {"Questionable", "Substituted"} <= set(samples["status"].drop_nulls())
+    # gaps and compression: irregular intervals on some tags
+    dt = (samples.sort("tag", "t").group_by("tag", maintain_order=True)
+          .agg(pl.col("t").diff().dt.total_seconds().alias("dt"))
+          .explode("dt").drop_nulls())
+    per_tag = dt.group_by("tag").agg(pl.col("dt").max().alias("max"),
+                                     (pl.col("dt") > TS).mean().alias("irregular"))
+    assert (per_tag["max"] >= 120).any(), "no gap of 2 minutes or more"
+    assert (per_tag["irregular"] > 0.3).any(), "no compressed tag"
+    assert (per_tag["irregular"] < 0.05).any(), "no uncompressed tag"
+    # set points are stored by exception only
+    sp_rows = samples.filter(pl.col("tag").str.ends_with(".SP")).group_by("tag").len()
+    assert (sp_rows["len"] < 0.05 * DAYS * 86400 / TS).all()
+
+
+def test_bad_data_loops_are_bad(plant, samples):
+    bad = plant.truth.filter(pl.col("truth_verdict") == "insufficient-data")
+    assert bad.height >= 1
+    usable_rows = []
+    for row in bad.join(plant.loops, on="loop").iter_rows(named=True):
+        x = samples.filter(pl.col("tag") == row["pv_tag"])["x"]
+        usable_rows.append((x.len(), x.drop_nulls().n_unique()))
+        # missing, all states, frozen or far too short
+        assert x.len() == 0 or x.drop_nulls().len() == 0 or x.drop_nulls().n_unique() == 1 \
+            or x.len() < 0.05 * DAYS * 86400 / TS, row["loop"]
+
+
+def test_artefacts_leave_usable_loops_usable(plant, samples):
+    usable = plant.truth.filter(pl.col("truth_verdict") != "insufficient-data").join(plant.loops, on="loop")
+    n_total = DAYS * 86400 / TS
+    for row in usable.iter_rows(named=True):
+        d = samples.filter(pl.col("tag") == row["pv_tag"])
+        t = d["t"].dt.epoch("s").to_numpy()
+        covered = (t.max() - t.min()) / (DAYS * 86400)
+        assert covered > 0.95, row["loop"]
+        assert d["x"].null_count() < 0.02 * n_total, row["loop"]
+
+
+# ---------------------------------------------------------------- truth vs data
+
+def test_stiction_loop_oscillates_at_stated_period(plant, samples):
+    rows = plant.truth.filter(pl.col("truth_verdict").is_in(["stiction", "backlash", "not-integrating",
+                                                             "linear-oscillation"]))
+    assert rows.height >= 4
+    for row in rows.iter_rows(named=True):
+        grid, y = _deviation(samples, row["loop"], TS)
+        P, r = _acf_period(y, TS)
+        assert r > 0.5, (row["loop"], r)
+        assert P == pytest.approx(row["period_s"], rel=0.1), row["loop"]
+        assert row["period_s"] >= 20 * TS
+        assert DAYS * 86400 / row["period_s"] >= 15
+        # amplitude: half the 2nd-98th percentile range of the data vs the truth
+        lo, hi = np.nanpercentile(y, [2, 98])
+        assert 0.5 * (hi - lo) == pytest.approx(row["amplitude"], rel=0.35), row["loop"]
+
+
+def test_healthy_loop_does_not_oscillate(plant, samples):
+    rows = plant.truth.filter(pl.col("truth_verdict") == "no-oscillation")
+    assert rows.height >= 2
+    for row in rows.iter_rows(named=True):
+        assert row["period_s"] is None and row["amplitude"] is None
+        grid, y = _deviation(samples, row["loop"], TS)
+        P, r = _acf_period(y, TS)
+        assert r < 0.3, (row["loop"], P, r)
+
+
+def test_noise_is_as_stated(plant, samples):
+    """PV noise: sigma of the first difference / sqrt(2) on sampled oscillating loops."""
+    rows = plant.truth.filter(pl.col("amplitude").is_not_null()).join(plant.loops, on="loop")
+    checked = 0
+    for row in rows.iter_rows(named=True):
+        t, x, _ = _series(samples, row["pv_tag"])
+        if np.mean(np.diff(t) > TS) > 0.05:
+            continue  # compressed
+        dx = np.diff(x[np.isfinite(x)])
+        # the wave itself adds slope; the noise floor is the smallest robust estimate
+        est = 1.4826 * np.median(np.abs(dx - np.median(dx))) / np.sqrt(2)
+        want = row["noise_pct"] / 100 * row["amplitude"]
+        assert est >= 0.5 * want, row["loop"]
+        checked += 1
+    assert checked >= 1
+
+
+# ---------------------------------------------------------------- behaviour
+
+def test_deterministic(plant, tmp_path):
+    again = synth_plant(N_LOOPS, DAYS, TS, tmp_path / "again", seed=SEED)
+    assert again.truth.equals(plant.truth)
+    assert again.loops.equals(plant.loops)
+    digest = lambda fs: [hashlib.sha256(f.read_bytes()).hexdigest() for f in fs]
+    assert [f.name for f in again.exports] == [f.name for f in plant.exports]
+    assert digest(again.exports) == digest(plant.exports)
+    other = synth_plant(N_LOOPS, DAYS, TS, tmp_path / "other", seed=SEED + 1)
+    assert not other.truth.equals(plant.truth)
+
+
+def test_runtime_small(plant_run):
+    # includes loading the compiled kernels from numba's cache
+    assert plant_run[1] < 20.0
+
+
+def test_formats_and_timezone(tmp_path):
+    (tmp_path / "exports").mkdir()
+    (tmp_path / "exports" / "long_20250101_g07.csv").write_text("stale")
+    (tmp_path / "exports" / "README.txt").write_text("keep me")
+    calls = []
+    p = synth_plant(9, 0.35, 10.0, tmp_path, seed=3, formats=("long-csv", "wide-csv", "parquet"),
+                    timezone="America/Chicago", progress=lambda d, t: calls.append((d, t)))
+    assert not (tmp_path / "exports" / "long_20250101_g07.csv").exists()
+    assert (tmp_path / "exports" / "README.txt").read_text() == "keep me"
+    assert sorted((tmp_path / "exports").glob("*_g*.*")) == sorted(p.exports)
+    kinds = {f.suffix + ("-wide" if f.name.startswith("wide") else "") for f in p.exports}
+    assert kinds == {".csv", ".csv-wide", ".parquet"}
+    assert calls and calls[-1][0] == calls[-1][1]
+    tags = set()
+    for f in p.exports:
+        if f.suffix == ".parquet":
+            d = pl.read_parquet(f)
+            assert tuple(d.columns) == EXPORT_COLUMNS
+            assert d.schema["value"] == pl.String
+            assert str(d.schema["timestamp"].time_zone) == "UTC"
+            tags |= set(d["tag"])
+        elif f.name.startswith("wide"):
+            d = pl.read_csv(f, infer_schema=False)
+            assert d.columns[0] == "timestamp"
+            tags |= set(d.columns[1:])
+            # US daylight saving ends at 07:00 UTC on 2026-11-01: both offsets appear
+            offs = set(d["timestamp"].str.slice(-6))
+            assert offs == {"-05:00", "-06:00"}
+        else:
+            d = pl.read_csv(f, infer_schema=False)
+            tags |= set(d["tag"])
+    # each loop's tags are in exactly one format
+    registered = set(p.loops["op_tag"])
+    assert registered <= tags
+
+
+def test_project_readers_accept_the_plant(plant):
+    """The project's own ingest and registry read the plant without complaint."""
+    ingest = pytest.importorskip("valvediag.ingest")
+    registry = pytest.importorskip("valvediag.registry")
+    for f in plant.exports:
+        samples, quarantine = ingest.read_export(f)
+        assert quarantine.height == 0, quarantine.head(3)
+        assert samples.filter(pl.col("value").is_null()).height > 0  # states kept as bad samples
+    specs, issues = registry.read_loops_csv(plant.loops_csv)
+    assert len(specs) == N_LOOPS and issues == []
+
+
+def test_public_functions_document_their_parameters():
+    import inspect
+
+    for name in sp.__all__:
+        obj = getattr(sp, name)
+        if inspect.isfunction(obj):
+            doc = inspect.getdoc(obj) or ""
+            lost = [p for p in inspect.signature(obj).parameters if p not in doc]
+            assert doc and not lost, (name, lost)
+
+
+def test_bad_arguments(tmp_path):
+    with pytest.raises(ValueError, match="n_loops"):
+        synth_plant(0, 1, 1, tmp_path)
+    with pytest.raises(ValueError, match="format"):
+        synth_plant(3, 0.1, 1, tmp_path, formats=("xlsx",))
+    with pytest.raises(ValueError, match="too short"):
+        synth_plant(3, 0.001, 1, tmp_path)
+    with pytest.raises(ValueError, match="sample_time"):
+        synth_plant(3, 0.1, 0, tmp_path)
+
+
+# ---------------------------------------------------------------- compression
+
+def test_swinging_door_line_and_error_bound():
+    x = np.linspace(0.0, 10.0, 101)
+    keep = swinging_door(x, 0.01)
+    assert np.flatnonzero(keep).tolist() == [0, 100]
+    rng = np.random.default_rng(0)
+    w = np.cumsum(rng.standard_normal(5000))
+    dev = 0.5
+    keep = swinging_door(w, dev)
+    k = np.flatnonzero(keep)
+    assert 10 < k.size < 0.5 * w.size
+    rebuilt = np.interp(np.arange(w.size), k, w[k])
+    err = np.abs(rebuilt - w)
+    assert err.max() <= 2 * dev + 1e-9     # inside the doors' triangle
+    assert np.mean(err <= dev) > 0.7
+    # the maximum interval forces points
+    keep = swinging_door(x, 0.01, max_interval=10)
+    assert np.diff(np.flatnonzero(keep)).max() <= 10
+
+
+def test_exception_deadband():
+    x = np.r_[np.zeros(10), np.ones(10)]
+    keep = exception_deadband(x, 0.5)
+    assert np.flatnonzero(keep).tolist() == [0, 9, 10]   # the value before the step too
+    keep = exception_deadband(np.zeros(100), 0.5, max_interval=30)
+    assert np.flatnonzero(keep).tolist() == [0, 30, 60, 90]
