@@ -1,6 +1,10 @@
 """valvediag: find sticky and loose control valves from historian data."""
-from . import closedloop, valves
-from .closedloop import LoopSimulation, simulate_loop
+from . import _numba_cache
+
+_numba_cache.configure()
+
+from . import closedloop, valves  # noqa: E402
+from .closedloop import LoopSimulation, simulate_loop  # noqa: E402
 
 __version__ = "0.1.0"
 __all__ = ["valves", "closedloop", "simulate_loop", "LoopSimulation", "__version__"]

@@ -40,8 +40,8 @@ __all__ = ["simulate_loop", "LoopSimulation", "process_matrices"]
 # Columns of the per-scenario parameter table handed to the kernel.
 (C_KC, C_TI, C_H, C_VCODE, C_VP0, C_VP1, C_ND, C_SP0, C_SPSTEP, C_SPT, C_LOAD0,
  C_LSTEP, C_LSTEPT, C_LDRIFT, C_LSINA, C_LSINW, C_LSINPHI, C_NOISE, C_SEED,
- C_OPLO, C_OPHI, C_X0, C_Y0, C_Z0, C_NMAX) = range(25)
-N_COLS = 25
+ C_OPLO, C_OPHI, C_X0, C_Y0, C_Z0, C_NMAX, C_LNOISE) = range(26)
+N_COLS = 26
 
 
 def process_matrices(process, process_gain, tau, lag, dead_time, sample_time):
@@ -115,7 +115,8 @@ def _simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_
     vp1 = P[C_VP1]
     nd = int(P[C_ND])
     noise = P[C_NOISE]
-    if noise > 0.0:
+    lnoise = P[C_LNOISE]
+    if noise > 0.0 or lnoise > 0.0:
         np.random.seed(int(P[C_SEED]))
     op_lo = P[C_OPLO]
     op_hi = P[C_OPHI]
@@ -142,6 +143,8 @@ def _simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_
         load = P[C_LOAD0] + P[C_LDRIFT] * t + P[C_LSINA] * np.sin(P[C_LSINW] * t + P[C_LSINPHI])
         if t >= P[C_LSTEPT]:
             load += P[C_LSTEP]
+        if lnoise > 0.0:
+            load += lnoise * np.random.standard_normal()
         pv = y
         if noise > 0.0:
             pv += noise * np.random.standard_normal()
@@ -195,7 +198,7 @@ def _simulate_batch(P, phi_f, gam_f, phi_g, gam_g, n, pv, op, mv, sp):
 def _param_table(m, *, kc, ti, sample_time, valve, valve_params, process, process_gain, tau,
                  lag, dead_time, sp, sp_step, sp_step_time, load, load_step, load_step_time,
                  load_drift, load_sin_amplitude, load_sin_period, load_sin_phase, noise_std,
-                 seed, op_limits):
+                 seed, op_limits, load_noise_std=0.0):
     """Build the (m, N_COLS) kernel table and process matrices."""
     P = np.zeros((m, N_COLS))
 
@@ -241,6 +244,7 @@ def _param_table(m, *, kc, ti, sample_time, valve, valve_params, process, proces
     P[:, C_LSINW] = np.where(np.isfinite(per) & (per > 0), 2 * np.pi / np.where(per > 0, per, 1), 0.0)
     col(C_LSINPHI, load_sin_phase)
     col(C_NOISE, noise_std)
+    col(C_LNOISE, load_noise_std)
     seeds = np.random.SeedSequence(seed).generate_state(m, dtype=np.uint32) if seed is not None \
         else np.random.SeedSequence().generate_state(m, dtype=np.uint32)
     P[:, C_SEED] = seeds
@@ -318,7 +322,8 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
                   sp=0.0, sp_step=0.0, sp_step_time=0.0,
                   load=0.0, load_step=0.0, load_step_time=0.0, load_drift=0.0,
                   load_sin_amplitude=0.0, load_sin_period=np.inf, load_sin_phase=0.0,
-                  noise_std=0.0, seed=None, op_limits=(-np.inf, np.inf)) -> LoopSimulation:
+                  load_noise_std=0.0, noise_std=0.0, seed=None,
+                  op_limits=(-np.inf, np.inf)) -> LoopSimulation:
     """Simulate PI control loops with a valve model, vectorised over scenarios.
 
     Every numeric argument may be a scalar or an array of shape (m,), one value
@@ -360,6 +365,9 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
         Load ramp rate [OP unit / s].
     load_sin_amplitude, load_sin_period, load_sin_phase : float or array_like
         Sinusoidal load [OP unit], period [s] and phase [rad].
+    load_noise_std : float or array_like
+        Standard deviation of a white load held over each sample [OP unit]:
+        unmeasured disturbances that keep a loop moving.
     noise_std : float or array_like
         Standard deviation of white measurement noise on the PV [PV unit]; the
         controller sees the noisy PV.
@@ -399,7 +407,8 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
         sp=sp, sp_step=sp_step, sp_step_time=sp_step_time, load=load, load_step=load_step,
         load_step_time=load_step_time, load_drift=load_drift,
         load_sin_amplitude=load_sin_amplitude, load_sin_period=load_sin_period,
-        load_sin_phase=load_sin_phase, noise_std=noise_std, seed=seed, op_limits=op_limits)
+        load_sin_phase=load_sin_phase, noise_std=noise_std, seed=seed, op_limits=op_limits,
+        load_noise_std=load_noise_std)
     if n_samples is None:
         if duration is None:
             raise TypeError("give duration [s] or n_samples")

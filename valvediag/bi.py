@@ -1,0 +1,773 @@
+"""
+The Backlash Index of Farenzena & Trierweiler (2012).
+
+In an integrating loop a sticky valve (stiction) jumps across its balance
+point, so the process variable (PV) turns sharply: it looks like a triangle
+wave, and the slope at a peak equals the slope half-way between a valley and a
+peak. A loose valve (backlash) moves continuously once it has crossed its dead
+band, so the PV turns smoothly: the slope at a peak is much smaller than the
+slope in the middle. The Backlash Index compares the two::
+
+    BI = mean(theta_middle) / mean(theta_peak)
+
+    BI >= 3        backlash
+    BI <= 1.5      stiction
+    in between     undecided
+
+Two estimators are provided.
+
+``method="paper"``
+    The literal procedure: apices are the extreme samples of each half-cycle,
+    angles are measured between an extreme (or middle) sample and its two
+    neighbours and averaged. It reproduces the paper's Tables 1-3 on clean
+    simulations, but fails on real data: noise of 0.2 % of the amplitude
+    already hides backlash, coarse sampling hides it too, and any drift biases
+    the middle points.
+
+``method="robust"`` (default)
+    Designed for historian data (noise 1-5 % of the amplitude, 10-20 samples
+    per period, drifting means, few cycles). The drift is removed with a
+    moving average over one period. Around every apex a rounded-corner model
+    (a hyperbola, [1]_) is fitted by least squares; its rounding width ``w``
+    (0 is a sharp corner) is shared by all apices of the record, which pools
+    the cycles and, because the samples fall at different phases in different
+    cycles, resolves rounding finer than the sample time. ``theta_peak`` is
+    the angle of the chord from the fitted apex to the fitted curve at a
+    reference resolution of ``P/200`` (what the literal method would see at 200
+    samples per period on noise-free data); ``theta_middle`` comes from a
+    straight-line fit around each middle point.
+
+Angles are measured in a normalised frame: the PV in units of the
+peak-to-peak amplitude and time in hundredths of the period. The BI therefore
+does not change when the PV is rescaled or shifted or when time is given in
+other units. In that frame the slopes are small, as they were in the paper's
+simulations (PV in percent, periods of 20-2000 s), so the angle ratio is
+practically the slope ratio.
+
+References
+----------
+.. [1] Farenzena, M., Trierweiler, J. O. (2012). Valve backlash and stiction
+   detection in integrating processes. 8th IFAC Symposium on Advanced Control
+   of Chemical Processes (ADCHEM), Singapore, 320-325.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+
+from .oscillation import _apices, _runs, acf_period, _linear_detrend, segment_cycles
+
+__all__ = ["backlash_index", "BacklashIndex", "THRESHOLDS", "bi_verdict"]
+
+#: (stiction_max, backlash_min) per method. The paper's limits; the robust
+#: limits are calibrated on simulation (see ``benchmarks/bench_bi_sweep.py``).
+THRESHOLDS = {"paper": (1.5, 3.0), "robust": (2.0, 2.4)}
+
+#: Reference resolution of the robust method [samples per period].
+NREF = 100.0
+#: The robust fit uses a quarter period before each apex and this fraction
+#: of the period after it.
+AFTER_FRACTION = 0.25
+#: Rounding widths searched by the robust fit [fraction of the period].
+W_GRID = np.r_[0.0, np.geomspace(0.001, 0.3, 23)]
+#: At most this many apices enter the pooled fit (spread over the record).
+MAX_APEX = 80
+#: Working resolution of the robust fit [samples per period]: finer records
+#: are subsampled to this.
+WORK_SPP = 96.0
+
+_ANGLE_UNIT = 100.0  # time unit = period / 100
+
+
+@numba.njit(cache=True, inline="always")
+def _angle(slope, unit):
+    return np.degrees(np.arctan(abs(slope) / unit))
+
+
+@numba.njit(cache=True)
+def _mid_crossings(y, ai):
+    """Index nearest to the mid-level between consecutive apices."""
+    m = max(ai.size - 1, 0)
+    out = np.empty(m, dtype=np.int64)
+    for j in range(m):
+        k1 = ai[j]
+        k2 = ai[j + 1]
+        lvl = 0.5 * (y[k1] + y[k2])
+        best = k1
+        bd = np.inf
+        for i in range(k1, k2 + 1):
+            d = abs(y[i] - lvl)
+            if d < bd:
+                bd = d
+                best = i
+        out[j] = best
+    return out
+
+
+@numba.njit(cache=True)
+def _paper_core(x, period_hint):
+    """Literal BI. Returns (bi, period, a_pp, apex_idx, apex_sign, theta_peak,
+    mid_idx, theta_mid)."""
+    y, ai, asg, P, dur, band = segment_cycles(x, period_hint, False)
+    n = x.size
+    empty_f = np.empty(0)
+    empty_i = np.empty(0, dtype=np.int64)
+    if ai.size < 3 or not np.isfinite(P):
+        return np.nan, P, np.nan, ai, asg, empty_f, empty_i, empty_f
+    app = 0.0
+    for j in range(ai.size - 1):
+        app += abs(y[ai[j + 1]] - y[ai[j]])
+    app /= ai.size - 1
+    unit = app / (P / _ANGLE_UNIT)  # PV per sample, in amplitude per P/100
+    thp = np.full(ai.size, np.nan)
+    for j in range(ai.size):
+        k = ai[j]
+        if k < 1 or k > n - 2:
+            continue
+        thp[j] = 0.5 * (_angle(x[k] - x[k - 1], unit) + _angle(x[k] - x[k + 1], unit))
+    mid = _mid_crossings(x, ai)
+    thm = np.full(mid.size, np.nan)
+    for j in range(mid.size):
+        c = mid[j]
+        if c < 1 or c > n - 2:
+            continue
+        thm[j] = 0.5 * (_angle(x[c] - x[c - 1], unit) + _angle(x[c + 1] - x[c], unit))
+    mp = np.nanmean(thp)
+    mm = np.nanmean(thm)
+    bi = mm / mp if mp > 0 else np.inf
+    return bi, P, app, ai, asg, thp, mid, thm
+
+
+@numba.njit(cache=True)
+def _solve3(a00, a01, a02, a11, a12, a22, r0, r1, r2):
+    """Solve a symmetric 3x3 system (Cholesky); NaN when singular."""
+    if a00 <= 0:
+        return np.nan, np.nan, np.nan
+    l00 = np.sqrt(a00)
+    l10 = a01 / l00
+    l20 = a02 / l00
+    d1 = a11 - l10 * l10
+    if d1 <= 1e-12 * a11:
+        return np.nan, np.nan, np.nan
+    l11 = np.sqrt(d1)
+    l21 = (a12 - l20 * l10) / l11
+    d2 = a22 - l20 * l20 - l21 * l21
+    if d2 <= 1e-12 * a22:
+        return np.nan, np.nan, np.nan
+    l22 = np.sqrt(d2)
+    z0 = r0 / l00
+    z1 = (r1 - l10 * z0) / l11
+    z2 = (r2 - l20 * z0 - l21 * z1) / l22
+    b2 = z2 / l22
+    b1 = (z1 - l21 * b2) / l11
+    b0 = (z0 - l10 * b1 - l20 * b2) / l00
+    return b0, b1, b2
+
+
+@numba.njit(cache=True)
+def _solve_spd(A, r):
+    """Solve a small symmetric positive-definite system in place (Cholesky).
+    Returns False when it is (numerically) singular."""
+    n = r.size
+    for j in range(n):
+        d = A[j, j]
+        for k in range(j):
+            d -= A[j, k] * A[j, k]
+        if d <= 1e-12 * (abs(A[j, j]) + 1e-300):
+            return False
+        A[j, j] = np.sqrt(d)
+        for i in range(j + 1, n):
+            v = A[i, j]
+            for k in range(j):
+                v -= A[i, k] * A[j, k]
+            A[i, j] = v / A[j, j]
+    for i in range(n):
+        v = r[i]
+        for k in range(i):
+            v -= A[i, k] * r[k]
+        r[i] = v / A[i, i]
+    for i in range(n - 1, -1, -1):
+        v = r[i]
+        for k in range(i + 1, n):
+            v -= A[k, i] * r[k]
+        r[i] = v / A[i, i]
+    return True
+
+
+@numba.njit(cache=True, inline="always")
+def _hyp(tau, w):
+    return -(np.sqrt(tau * tau + w * w) - w)
+
+
+@numba.njit(cache=True)
+def _fit_one(y, k, s, qb, qa, sh, w, A, r, tail):
+    """Least squares of the apex model to ``s * y[k-qb : k+qa+1]``::
+
+        y0 + m tau - b (sqrt(tau^2 + w^2) - w) + c tau^2 [tau > 0]
+
+    with ``tau = j - sh`` [samples] and ``c <= 0``. The last term lets the PV
+    keep steepening after the apex, as it does after a slip while the valve of
+    a slow loop keeps moving, without reading that as rounding; ``c > 0``
+    would let it cancel the rounding on one side, which no valve does. ``A`` (4, 4) and ``r``
+    (4,) are work arrays; ``r`` returns (y0, m, b, c). Without ``tail`` the
+    last term is left out (c = 0). Returns the residual sum of squares, inf
+    when singular."""
+    for i in range(4):
+        r[i] = 0.0
+        for j in range(4):
+            A[i, j] = 0.0
+    szz = 0.0
+    for j in range(-qb, qa + 1):
+        tau = j - sh
+        z = s * y[k + j]
+        f0 = 1.0
+        f1 = tau
+        f2 = _hyp(tau, w)
+        f3 = tau * tau if tau > 0.0 else 0.0
+        A[0, 0] += 1.0
+        A[1, 0] += f1
+        A[1, 1] += f1 * f1
+        A[2, 0] += f2
+        A[2, 1] += f2 * f1
+        A[2, 2] += f2 * f2
+        A[3, 0] += f3
+        A[3, 1] += f3 * f1
+        A[3, 2] += f3 * f2
+        A[3, 3] += f3 * f3
+        r[0] += z
+        r[1] += f1 * z
+        r[2] += f2 * z
+        r[3] += f3 * z
+        szz += z * z
+    rz0, rz1, rz2, rz3 = r[0], r[1], r[2], r[3]
+    a00, a10, a11, a20, a21, a22 = A[0, 0], A[1, 0], A[1, 1], A[2, 0], A[2, 1], A[2, 2]
+    if tail and _solve_spd(A, r) and r[3] <= 0.0:
+        return szz - (r[0] * rz0 + r[1] * rz1 + r[2] * rz2 + r[3] * rz3)
+    # the PV can only steepen after an apex (c <= 0): refit without the term
+    b0, b1, b2 = _solve3(a00, a10, a20, a11, a21, a22, rz0, rz1, rz2)
+    if not np.isfinite(b0):
+        return np.inf
+    r[0], r[1], r[2], r[3] = b0, b1, b2, 0.0
+    return szz - (b0 * rz0 + b1 * rz1 + b2 * rz2)
+
+
+@numba.njit(cache=True)
+def _fit_apices(y, ai, asg, qbs, qas, wgrid, reach, tail):
+    """Fit the apex model around every apex for every rounding width, over
+    ``qbs[a]`` samples before and ``qas[a]`` after the centre of apex ``a``.
+
+    The sub-sample position of the corner is searched on a grid over
+    ``+-reach`` samples, refined by successive halving to 1/64 sample.
+
+    Returns rss (A, W) and params (A, W, 5) = (shift, y0, m, b, c), time in
+    samples relative to the apex centre."""
+    nA = ai.size
+    nW = wgrid.size
+    rss = np.full((nA, nW), np.inf)
+    par = np.full((nA, nW, 5), np.nan)
+    A = np.empty((4, 4))
+    r = np.empty(4)
+    ngrid = int(round(8 * reach)) + 1
+    for a in range(nA):
+        k = ai[a]
+        s = asg[a]
+        qb = qbs[a]
+        qa = qas[a]
+        for wi in range(nW):
+            w = wgrid[wi]
+            best = np.inf
+            bsh = 0.0
+            for si in range(ngrid):
+                sh = -reach + 0.25 * si
+                v = _fit_one(y, k, s, qb, qa, sh, w, A, r, tail)
+                if v < best:
+                    best = v
+                    bsh = sh
+            step = 0.125
+            for _ in range(4):
+                centre = bsh
+                for sh in (centre - step, centre + step):
+                    v = _fit_one(y, k, s, qb, qa, sh, w, A, r, tail)
+                    if v < best:
+                        best = v
+                        bsh = sh
+                step *= 0.5
+            v = _fit_one(y, k, s, qb, qa, bsh, w, A, r, tail)
+            rss[a, wi] = v
+            par[a, wi, 0] = bsh
+            for i in range(4):
+                par[a, wi, 1 + i] = r[i]
+    return rss, par
+
+
+@numba.njit(cache=True)
+def _smoothed_apices(y, ai, asg, L):
+    """Move every apex to the extreme of a centred moving average of width
+    ``L`` within +-L samples: the raw extreme sample carries a positive noise
+    excursion, which would bias the fitted corner towards sharp."""
+    n = y.size
+    c = np.empty(n + 1)
+    c[0] = 0.0
+    for i in range(n):
+        c[i + 1] = c[i] + y[i]
+    h = L // 2
+    out = ai.copy()
+    for a in range(ai.size):
+        k = ai[a]
+        s = asg[a]
+        best = k
+        bv = -np.inf
+        for j in range(max(h, k - L), min(n - h - 1, k + L) + 1):
+            v = s * (c[j + h + 1] - c[j - h]) / (2 * h + 1)
+            if v > bv:
+                bv = v
+                best = j
+        out[a] = best
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _apex_model(tau, y0, m, b, c, w):
+    v = y0 + m * tau + b * _hyp(tau, w)
+    if tau > 0.0:
+        v += c * tau * tau
+    return v
+
+
+@numba.njit(cache=True)
+def _model_apex(y0, m, b, c, w, lo, hi):
+    """Position [samples] of the fitted model's maximum on [lo, hi], found on
+    a 1/20-sample grid; NaN when the maximum sits on the border (the fitted
+    curve has no apex there)."""
+    best = lo
+    bv = -np.inf
+    n = int((hi - lo) * 20.0) + 1
+    for i in range(n):
+        t = lo + i / 20.0
+        v = _apex_model(t, y0, m, b, c, w)
+        if v > bv:
+            bv = v
+            best = t
+    if best <= lo + 0.05 or best >= hi - 0.05:
+        return np.nan
+    return best
+
+
+@numba.njit(cache=True)
+def _robust_core(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
+    """Robust BI. ``w_grid`` holds the rounding widths searched [fraction of
+    the period]. Returns (bi, period, a_pp, w_rel, apex_idx, apex_sign,
+    theta_peak, apex_pos, mid_idx, theta_mid, apex_par, w_samples, decim)."""
+    y, ai, asg, P, dur, band = segment_cycles(x, period_hint, True)
+    empty_f = np.empty(0)
+    empty_i = np.empty(0, dtype=np.int64)
+    empty_p = np.empty((0, 5))
+    if ai.size < 3 or not np.isfinite(P):
+        return (np.nan, P, np.nan, np.nan, ai, asg, empty_f, empty_f, empty_i, empty_f,
+                empty_p, np.nan, 1)
+    # work at no more than WORK_SPP samples per period
+    r = 1
+    if P > 1.5 * WORK_SPP:
+        r = int(P // WORK_SPP)
+    if r > 1:
+        yd = y[::r].copy()
+        st, sg = _runs(yd, band)
+        ai, asg = _apices(yd, st, sg)
+        Pd = P / r
+    else:
+        yd = y
+        Pd = P
+    n = yd.size
+    L = max(3, int(round(Pd / 12.0)))
+    L += 1 - L % 2
+    ai = _smoothed_apices(yd, ai, asg, L)
+    reach = max(2.0, 0.5 * L + 1.0)
+    q = max(3, int(round(Pd / 4.0)))
+    qa_max = max(3, int(round(Pd * after_frac)))
+    r_int = int(np.ceil(reach))
+    keep = np.zeros(ai.size, dtype=np.bool_)
+    for j in range(ai.size):
+        keep[j] = ai[j] - q - r_int >= 0 and ai[j] + qa_max + r_int + 1 < n
+    ai = ai[keep]
+    asg = asg[keep]
+    if ai.size < 2:
+        return (np.nan, P, np.nan, np.nan, ai * r, asg, empty_f, empty_f, empty_i, empty_f,
+                empty_p, np.nan, r)
+    if ai.size > MAX_APEX:
+        sel = np.round(np.linspace(0, ai.size - 1, MAX_APEX)).astype(np.int64)
+        ai = ai[sel]
+        asg = asg[sel]
+    # each apex window reaches at most half-way to its neighbours (their
+    # middle points), so that a sawtooth's short side is not fitted across
+    # the next corner
+    qbs = np.empty(ai.size, dtype=np.int64)
+    qas = np.empty(ai.size, dtype=np.int64)
+    for j in range(ai.size):
+        qb = q
+        qa = qa_max
+        if j > 0 and asg[j - 1] != asg[j]:
+            qb = min(qb, (ai[j] - ai[j - 1]) // 2)
+        if j < ai.size - 1 and asg[j + 1] != asg[j]:
+            qa = min(qa, (ai[j + 1] - ai[j]) // 2)
+        qbs[j] = max(3, qb)
+        qas[j] = max(3, qa)
+    app = 0.0
+    cnt = 0
+    for j in range(ai.size - 1):
+        if asg[j] != asg[j + 1]:
+            app += abs(yd[ai[j + 1]] - yd[ai[j]])
+            cnt += 1
+    app = app / cnt if cnt > 0 else 2.0 * band / 0.2
+    wgrid = w_grid * Pd
+    # Two apex models: a symmetric rounded corner, and the same with a
+    # steepening after the apex (the valve of a slow loop keeps moving after
+    # a slip). BIC picks one: on noisy records the extra term would absorb
+    # half of a backlash rounding, on clean ones a stiction tail would read
+    # as rounding without it.
+    npts = 0
+    for j in range(ai.size):
+        npts += qbs[j] + qas[j] + 1
+    best_bic = np.inf
+    wbest = 0
+    par = np.empty((0, 0, 0))
+    for tail in (False, True):
+        rss_t, par_t = _fit_apices(yd, ai, asg, qbs, qas, wgrid, reach, tail)
+        tot = np.zeros(wgrid.size)
+        for wi in range(wgrid.size):
+            for a in range(ai.size):
+                tot[wi] += rss_t[a, wi] if np.isfinite(rss_t[a, wi]) else 0.0
+        wi_t = int(np.argmin(tot))
+        k = ai.size * (5 if tail else 4) + 1
+        bic = npts * np.log(max(tot[wi_t], 1e-300) / npts) + k * np.log(npts)
+        if bic < best_bic:
+            best_bic = bic
+            wbest = wi_t
+            par = par_t
+    w = wgrid[wbest]
+    unit = app / (Pd / _ANGLE_UNIT)
+    delta = Pd / nref
+    thp = np.full(ai.size, np.nan)
+    apos = np.full(ai.size, np.nan)
+    apar = np.full((ai.size, 5), np.nan)
+    for a in range(ai.size):
+        sh = par[a, wbest, 0]
+        y0 = par[a, wbest, 1]
+        m = par[a, wbest, 2]
+        b = par[a, wbest, 3]
+        c = par[a, wbest, 4]
+        for i in range(5):
+            apar[a, i] = par[a, wbest, i]
+        if not np.isfinite(y0):
+            continue
+        ta = _model_apex(y0, m, b, c, w, -qbs[a] * 0.5, qas[a] * 0.5)
+        if not np.isfinite(ta):
+            continue
+        f0 = _apex_model(ta, y0, m, b, c, w)
+        fl = _apex_model(ta - delta, y0, m, b, c, w)
+        fr = _apex_model(ta + delta, y0, m, b, c, w)
+        thp[a] = 0.5 * (_angle((f0 - fl) / delta, unit) + _angle((f0 - fr) / delta, unit))
+        apos[a] = (ai[a] + sh + ta) * r
+    # middle slopes: straight-line fit over +-P/20 around the mid-level point
+    mid = _mid_crossings(yd, ai)
+    hm = max(1, int(round(Pd / 20.0)))
+    thm = np.full(mid.size, np.nan)
+    for j in range(mid.size):
+        if asg[j] == asg[j + 1]:
+            continue
+        c = mid[j]
+        lo = max(c - hm, ai[j])
+        hi = min(c + hm, ai[j + 1])
+        if hi - lo < 2:
+            continue
+        tm = 0.5 * (lo + hi)
+        ym = 0.0
+        for i in range(lo, hi + 1):
+            ym += yd[i]
+        ym /= hi - lo + 1
+        num = 0.0
+        den = 0.0
+        for i in range(lo, hi + 1):
+            num += (i - tm) * (yd[i] - ym)
+            den += (i - tm) * (i - tm)
+        thm[j] = _angle(num / den, unit)
+    mp = np.nanmean(thp)
+    mm = np.nanmean(thm)
+    bi = mm / mp if mp > 0 else np.inf
+    return (bi, P, app, w / Pd, ai * r, asg, thp, apos, mid * r, thm, apar, w * r, r)
+
+
+def bi_verdict(bi: float, method: str = "robust", thresholds=None) -> str:
+    """Map a BI to ``'stiction'``, ``'backlash'`` or ``'undecided'``.
+
+    Parameters
+    ----------
+    bi : float
+        Backlash Index [-].
+    method : {'robust', 'paper'}
+        Selects the default thresholds from :data:`THRESHOLDS`.
+    thresholds : tuple of float, optional
+        ``(stiction_max, backlash_min)``.
+
+    Returns
+    -------
+    str
+    """
+    lo, hi = thresholds if thresholds is not None else THRESHOLDS[method]
+    if not np.isfinite(bi) and not np.isinf(bi):
+        return "insufficient-data"
+    if bi >= hi:
+        return "backlash"
+    if bi <= lo:
+        return "stiction"
+    return "undecided"
+
+
+@dataclass(frozen=True)
+class BacklashIndex:
+    """Result of :func:`backlash_index`.
+
+    Attributes
+    ----------
+    bi : float
+        Backlash Index ``mean(theta_middle) / mean(theta_peak)`` [-].
+    verdict : str
+        ``'stiction'``, ``'backlash'``, ``'undecided'`` or
+        ``'insufficient-data'`` (see ``reason``).
+    method : str
+        ``'robust'`` or ``'paper'``.
+    thresholds : tuple of float
+        ``(stiction_max, backlash_min)`` used for the verdict.
+    peaks, valleys : numpy.ndarray of int
+        Sample indices of the PV maxima and minima used.
+    middle : numpy.ndarray of int
+        Sample indices of the middle points (between a valley and a peak).
+    apex_position : numpy.ndarray of float
+        Fitted apex positions [samples] (robust), else the apex indices.
+    theta_peak : numpy.ndarray
+        Angle at every apex, in apex order (peaks and valleys interleaved)
+        [degree, normalised frame].
+    theta_middle : numpy.ndarray
+        Angle at every middle point [degree, normalised frame].
+    bi_per_cycle : numpy.ndarray
+        ``theta_middle[j] / theta_peak[j + 1]``: the BI of each half-cycle.
+    cycles : float
+        Complete cycles used.
+    period : float
+        [s]
+    amplitude : float
+        Half the peak-to-peak amplitude [PV unit].
+    rounding : float
+        Robust method: fitted apex rounding width as a fraction of the period
+        (0 = sharp corner); NaN for the paper method.
+    reason : str
+        Why the verdict is ``insufficient-data``; empty otherwise.
+    pv : numpy.ndarray
+        The analysed record [PV unit].
+    sample_time : float
+        [s]
+    """
+
+    bi: float
+    verdict: str
+    method: str
+    thresholds: tuple
+    peaks: np.ndarray
+    valleys: np.ndarray
+    middle: np.ndarray
+    apex_position: np.ndarray
+    theta_peak: np.ndarray
+    theta_middle: np.ndarray
+    bi_per_cycle: np.ndarray
+    cycles: float
+    period: float
+    amplitude: float
+    rounding: float
+    reason: str
+    pv: np.ndarray = field(repr=False)
+    sample_time: float = 1.0
+    _apex_idx: np.ndarray = field(default=None, repr=False)
+    _apex_fit: np.ndarray = field(default=None, repr=False)
+    _fit_width: float = field(default=np.nan, repr=False)
+    _decimation: int = field(default=1, repr=False)
+
+    def plot(self, ax=None, *, zoom_cycles: float | None = None):
+        """Plot the PV with the peaks, valleys, middle points and the angles.
+
+        Parameters
+        ----------
+        ax : matplotlib.axes.Axes, optional
+        zoom_cycles : float, optional
+            Show only about this many cycles from the middle of the record.
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(9, 3.5))
+        h = self.sample_time
+        t = np.arange(self.pv.size) * h
+        lo, hi = 0, self.pv.size
+        if zoom_cycles and np.isfinite(self.period) and self.period > 0:
+            span = int(zoom_cycles * self.period / h)
+            c = self.pv.size // 2
+            lo, hi = max(0, c - span // 2), min(self.pv.size, c + span // 2)
+        ax.plot(t[lo:hi], self.pv[lo:hi], color="0.35", lw=0.8, marker=".", ms=2, label="PV")
+        inr = lambda idx: idx[(idx >= lo) & (idx < hi)]
+        pk, vl, md = inr(self.peaks), inr(self.valleys), inr(self.middle)
+        ax.plot(t[pk], self.pv[pk], "v", color="C3", ms=6, label="peaks")
+        ax.plot(t[vl], self.pv[vl], "^", color="C2", ms=6, label="valleys")
+        ax.plot(t[md], self.pv[md], "o", color="C0", ms=4, mfc="none", label="middle points")
+        # angle evidence: the measured slopes drawn as short segments
+        if np.isfinite(self.period) and self.amplitude > 0:
+            app = 2 * self.amplitude
+            unit = app / (self.period / _ANGLE_UNIT)   # PV per second
+            seg = 0.06 * self.period
+            ai = self._apex_idx if self._apex_idx is not None else np.sort(np.r_[self.peaks, self.valleys])
+            for j, k in enumerate(ai):
+                if not (lo <= k < hi) or j >= self.theta_peak.size or not np.isfinite(self.theta_peak[j]):
+                    continue
+                slope = np.tan(np.radians(self.theta_peak[j])) * unit
+                s = 1 if self.pv[k] >= np.median(self.pv) else -1
+                xs = np.array([-seg, 0, seg])
+                ax.plot(t[k] + xs, self.pv[k] - s * slope * np.abs(xs), color="C3", lw=1.6, alpha=0.8)
+            for j, c in enumerate(self.middle):
+                if not (lo <= c < hi) or j >= self.theta_middle.size or not np.isfinite(self.theta_middle[j]):
+                    continue
+                slope = np.tan(np.radians(self.theta_middle[j])) * unit
+                d = np.sign(self.pv[min(c + 1, self.pv.size - 1)] - self.pv[max(c - 1, 0)]) or 1
+                xs = np.array([-seg, seg])
+                ax.plot(t[c] + xs, self.pv[c] + d * slope * xs, color="C0", lw=1.6, alpha=0.8)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("PV")
+        ax.set_title(f"BI = {self.bi:.2f} ({self.method}): {self.verdict}")
+        ax.legend(fontsize=8, loc="upper right")
+        return ax
+
+
+def _check_time(pv, sample_time, time):
+    if time is None:
+        if sample_time is None:
+            raise TypeError("give sample_time [s] or time")
+        h = float(sample_time)
+        if not np.isfinite(h) or h <= 0:
+            raise ValueError(f"sample_time must be a positive number of seconds, got {sample_time!r}")
+        return h
+    t = np.asarray(time, dtype=float)
+    if t.shape != pv.shape:
+        raise ValueError(f"time has {t.size} values but pv has {pv.size}")
+    dt = np.diff(t)
+    bad = np.flatnonzero(~(dt > 0))
+    if bad.size:
+        raise ValueError(f"time does not increase at sample {bad[0] + 1} "
+                         f"({t[bad[0]]!r} -> {t[bad[0] + 1]!r})")
+    h = float(np.median(dt))
+    if np.max(np.abs(dt - h)) > 0.01 * h:
+        raise ValueError("time is not uniformly sampled; align the record on a uniform grid "
+                         "first (valvediag.align) or pass sample_time")
+    return h
+
+
+def backlash_index(pv, sample_time=None, *, time=None, method: str = "robust",
+                   thresholds=None) -> BacklashIndex:
+    """Backlash Index of an oscillating PV (Farenzena & Trierweiler 2012).
+
+    Parameters
+    ----------
+    pv : array_like, shape (n,)
+        Uniformly sampled process variable of an integrating loop during a
+        sustained oscillation [any unit]. No NaN: split records at gaps first.
+    sample_time : float, optional
+        Sample time [s, or any time unit]. Give this or ``time``.
+    time : array_like, shape (n,), optional
+        Sample times; must increase and be uniformly spaced.
+    method : {'robust', 'paper'}
+        Estimator, see the module documentation.
+    thresholds : tuple of float, optional
+        ``(stiction_max, backlash_min)``; default :data:`THRESHOLDS`.
+
+    Returns
+    -------
+    BacklashIndex
+        ``verdict`` is ``'insufficient-data'`` with a ``reason`` when fewer
+        than 1.5 cycles are found.
+
+    Raises
+    ------
+    ValueError
+        NaN or infinite values, a constant record, fewer than 8 samples,
+        time that does not increase or is not uniform.
+
+    Notes
+    -----
+    The method assumes an integrating process with no significant lag and a
+    sustained oscillation caused by the valve. A self-regulating process, a
+    lag comparable to the period (it rounds a stiction apex), or an
+    oscillation from tuning or an external disturbance all violate that;
+    :func:`valvediag.classify_loop` screens for them. Below about 10 samples
+    per period the apex shape is lost and the BI drifts towards stiction
+    (Table 3 of the paper shows the same trend).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> t = np.arange(2000) * 0.5
+    >>> tri = 2 * np.abs(((t / 100) % 1) - 0.5)       # triangle: stiction-like
+    >>> backlash_index(tri, sample_time=0.5).verdict
+    'stiction'
+    """
+    if method not in THRESHOLDS:
+        raise ValueError(f"method must be 'robust' or 'paper', not {method!r}")
+    x = np.asarray(pv, dtype=float)
+    if x.ndim != 1:
+        raise ValueError(f"pv must be one-dimensional, got shape {x.shape}")
+    if x.size < 8:
+        raise ValueError(f"pv has {x.size} samples; the BI needs at least two cycles")
+    bad = np.flatnonzero(~np.isfinite(x))
+    if bad.size:
+        raise ValueError(f"pv has {bad.size} non-finite values (first at sample {bad[0]}); "
+                         "split the record at gaps or bad states first")
+    if np.ptp(x) == 0:
+        raise ValueError("pv is constant: there is no oscillation to analyse")
+    h = _check_time(x, sample_time, time)
+    thr = tuple(thresholds) if thresholds is not None else THRESHOLDS[method]
+    x = np.ascontiguousarray(x)
+    hint, _ = acf_period(_linear_detrend(x)) if method == "robust" else (0.0, 0.0)
+    hint = hint if np.isfinite(hint) else 0.0
+    apos = apar = None
+    wfit = np.nan
+    decim = 1
+    if method == "paper":
+        bi, P, app, ai, asg, thp, mid, thm = _paper_core(x, 0.0)
+        rounding = np.nan
+        apos = ai.astype(float)
+    else:
+        (bi, P, app, rounding, ai, asg, thp, apos, mid, thm, apar, wfit,
+         decim) = _robust_core(x, hint, NREF, W_GRID)
+    cycles = max(0.0, (ai.size - 1) / 2.0)
+    reason = ""
+    if not np.isfinite(P) or ai.size < 3 or thp.size == 0 or not np.any(np.isfinite(thp)) \
+            or not np.any(np.isfinite(thm)):
+        verdict = "insufficient-data"
+        reason = (f"only {cycles:.1f} cycles found; the BI needs at least 1.5 complete cycles"
+                  if ai.size < 3 else "no apex or middle point could be measured")
+        bi = np.nan
+    else:
+        verdict = bi_verdict(bi, method, thr)
+    thp = np.asarray(thp, dtype=float)
+    thm = np.asarray(thm, dtype=float)
+    n_pc = min(thm.size, max(thp.size - 1, 0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        per_cycle = thm[:n_pc] / thp[1:n_pc + 1] if n_pc else np.empty(0)
+    return BacklashIndex(
+        bi=float(bi), verdict=verdict, method=method, thresholds=thr,
+        peaks=ai[asg > 0].copy(), valleys=ai[asg < 0].copy(), middle=np.asarray(mid).copy(),
+        apex_position=np.asarray(apos, dtype=float), theta_peak=thp, theta_middle=thm,
+        bi_per_cycle=per_cycle, cycles=cycles, period=float(P) * h,
+        amplitude=float(app) / 2 if np.isfinite(app) else np.nan,
+        rounding=float(rounding), reason=reason, pv=x, sample_time=h,
+        _apex_idx=ai.copy(), _apex_fit=apar, _fit_width=float(wfit), _decimation=int(decim))
