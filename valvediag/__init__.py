@@ -4,7 +4,10 @@ from . import _numba_cache
 _numba_cache.configure()
 
 from . import closedloop, valves  # noqa: E402
+from .bi import BacklashIndex, backlash_index  # noqa: E402
+from .classify import VERDICTS, LoopDiagnosis, classify_loop  # noqa: E402
 from .closedloop import LoopSimulation, simulate_loop  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["valves", "closedloop", "simulate_loop", "LoopSimulation", "__version__"]
+__all__ = ["backlash_index", "BacklashIndex", "classify_loop", "LoopDiagnosis", "VERDICTS",
+           "simulate_loop", "LoopSimulation", "valves", "closedloop", "__version__"]

@@ -33,7 +33,7 @@ import numba
 import numpy as np
 from scipy.linalg import expm
 
-from .valves import N_STATE, VALVE_MODELS, _valve_init, _valve_step
+from .valves import VALVE_MODELS, _valve_init, _valve_step
 
 __all__ = ["simulate_loop", "LoopSimulation", "process_matrices"]
 
@@ -100,12 +100,13 @@ def process_matrices(process, process_gain, tau, lag, dead_time, sample_time):
 
 @numba.njit(cache=True)
 def _simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_sp,
-                  stop_reversals, rev_idx):
+                  stop_reversals, rev_idx, pv_only=False):
     """Simulate one loop for up to ``n`` samples into the output buffers.
 
     If ``stop_reversals > 0`` the run stops once the valve has reversed its
     direction of travel that many times; the sample index of each reversal is
-    written to ``rev_idx``. Returns the number of samples written.
+    written to ``rev_idx``. With ``pv_only`` only ``out_pv`` is written.
+    Returns the number of samples written.
     """
     kc = P[C_KC]
     h = P[C_H]
@@ -120,8 +121,8 @@ def _simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_
         np.random.seed(int(P[C_SEED]))
     op_lo = P[C_OPLO]
     op_hi = P[C_OPHI]
-    # delay line of plant inputs v_{k-nd-1} .. v_k
-    L = nd + 2
+    # delay line: the previous nd + 1 plant inputs v_{k-nd-1} .. v_{k-1}
+    L = nd + 1
     buf = np.empty(L)
     x0 = P[C_X0]
     v0 = x0 - P[C_LOAD0]
@@ -129,39 +130,70 @@ def _simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_
         buf[j] = v0
     z = P[C_Z0]
     y = P[C_Y0]
-    st = np.empty(N_STATE)
-    _valve_init(vcode, vp0, vp1, x0, x0, st)
+    vx, vup, vd, vstuck, vus, vcause = _valve_init(vcode, x0, x0)
     integ = x0 / kc if kc != 0.0 else 0.0
     last_dir = 0.0
     x_prev = x0
     nrev = 0
+    # loop constants as scalars (the hot loop reads no parameter table)
+    sp0 = P[C_SP0]
+    sp1 = sp0 + P[C_SPSTEP]
+    k_sp = int(np.ceil(P[C_SPT] / h - 1e-9)) if P[C_SPT] > 0 else 0
+    load0 = P[C_LOAD0]
+    lstep = P[C_LSTEP]
+    k_ls = int(np.ceil(P[C_LSTEPT] / h - 1e-9)) if P[C_LSTEPT] > 0 else 0
+    ldrift = P[C_LDRIFT]
+    sin_a = P[C_LSINA]
+    sin_w = P[C_LSINW]
+    sin_p = P[C_LSINPHI]
+    has_sin = sin_a != 0.0
+    # one test per step for everything that is usually absent
+    dynamic = has_sin or ldrift != 0.0 or lnoise > 0.0 or noise > 0.0 or \
+        (lstep != 0.0 and k_ls > 0)
+    clipped = op_hi < np.inf or op_lo > -np.inf
+    if lstep != 0.0 and k_ls == 0:
+        load0 += lstep
+    f00, f01, f10, f11 = phi_f[0, 0], phi_f[0, 1], phi_f[1, 0], phi_f[1, 1]
+    gf0, gf1 = gam_f[0], gam_f[1]
+    g00, g01, g10, g11 = phi_g[0, 0], phi_g[0, 1], phi_g[1, 0], phi_g[1, 1]
+    gg0, gg1 = gam_g[0], gam_g[1]
+    bi = 0  # ring-buffer position of the oldest input, v_{k-nd-1}
+    # without dead time the first sub-interval is empty (identity): skip it
+    direct = nd == 0 and gf0 == 0.0 and gf1 == 0.0 and f00 == 1.0 and f11 == 1.0 \
+        and f01 == 0.0 and f10 == 0.0
     for k in range(n):
-        t = k * h
-        sp = P[C_SP0]
-        if t >= P[C_SPT]:
-            sp += P[C_SPSTEP]
-        load = P[C_LOAD0] + P[C_LDRIFT] * t + P[C_LSINA] * np.sin(P[C_LSINW] * t + P[C_LSINPHI])
-        if t >= P[C_LSTEPT]:
-            load += P[C_LSTEP]
-        if lnoise > 0.0:
-            load += lnoise * np.random.standard_normal()
+        sp = sp1 if k >= k_sp else sp0
+        load = load0
         pv = y
-        if noise > 0.0:
-            pv += noise * np.random.standard_normal()
+        if dynamic:
+            if ldrift != 0.0:
+                load += ldrift * (k * h)
+            if has_sin:
+                load += sin_a * np.sin(sin_w * (k * h) + sin_p)
+            if k_ls > 0 and k >= k_ls:
+                load += lstep
+            if lnoise > 0.0:
+                load += lnoise * np.random.standard_normal()
+            if noise > 0.0:
+                pv += noise * np.random.standard_normal()
         e = sp - pv
         integ += ki * e
         u = kc * (e + integ)
-        if u > op_hi:
-            u = op_hi
-            integ = u / kc - e
-        elif u < op_lo:
-            u = op_lo
-            integ = u / kc - e
-        x = _valve_step(vcode, vp0, vp1, u, st)
+        if clipped:
+            if u > op_hi:
+                u = op_hi
+                integ = u / kc - e
+            elif u < op_lo:
+                u = op_lo
+                integ = u / kc - e
+        vx, vup, vd, vstuck, vus, vcause = _valve_step(vcode, vp0, vp1, u, vx, vup, vd, vstuck,
+                                                       vus, vcause)
+        x = vx
         out_pv[k] = pv
-        out_op[k] = u
-        out_mv[k] = x
-        out_sp[k] = sp
+        if not pv_only:
+            out_op[k] = u
+            out_mv[k] = x
+            out_sp[k] = sp
         if stop_reversals > 0:
             dx = x - x_prev
             if dx != 0.0:
@@ -173,16 +205,22 @@ def _simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_
             x_prev = x
             if nrev >= stop_reversals:
                 return k + 1
-        # shift the delay line and append this sample's plant input
-        for j in range(L - 1):
-            buf[j] = buf[j + 1]
-        buf[L - 1] = x - load
-        v_old = buf[0]   # v_{k-nd-1}
-        v_new = buf[1]   # v_{k-nd}
-        z1 = phi_f[0, 0] * z + phi_f[0, 1] * y + gam_f[0] * v_old
-        y1 = phi_f[1, 0] * z + phi_f[1, 1] * y + gam_f[1] * v_old
-        z = phi_g[0, 0] * z1 + phi_g[0, 1] * y1 + gam_g[0] * v_new
-        y = phi_g[1, 0] * z1 + phi_g[1, 1] * y1 + gam_g[1] * v_new
+        # plant input held over this sample: v_{k-nd-1} for the first
+        # fraction of it, v_{k-nd} for the rest (exact fractional dead time)
+        v_now = x - load
+        if direct:
+            v_new = v_now
+            z1 = z
+            y1 = y
+        else:
+            v_old = buf[bi]
+            v_new = v_now if nd == 0 else buf[bi + 1 if bi + 1 < L else 0]
+            buf[bi] = v_now
+            bi = bi + 1 if bi + 1 < L else 0
+            z1 = f00 * z + f01 * y + gf0 * v_old
+            y1 = f10 * z + f11 * y + gf1 * v_old
+        z = g00 * z1 + g01 * y1 + gg0 * v_new
+        y = g10 * z1 + g11 * y1 + gg1 * v_new
     return n
 
 

@@ -51,43 +51,39 @@ VALVE_MODELS: dict[str, tuple[int, tuple[str, ...]]] = {
     "he": (HE, ("fs", "fd")),
 }
 
-# State vector layout (one row per valve).
-_X, _UPREV, _DIR, _STUCK, _USTUCK, _CAUSE = range(6)
-N_STATE = 6
+# Valve state, carried as a tuple (kept in registers by the compiler):
+# (x position, u_prev, direction d, stuck flag, u at stick / residual force,
+# cause of sticking).
 # Why a Kano/Choudhury valve is stuck: after a reversal, after the input came to
 # rest, or at the start of the record (centred in the band).
 _CAUSE_REVERSAL, _CAUSE_REST, _CAUSE_START = 1.0, 0.0, 2.0
 
 
 @numba.njit(cache=True, inline="always")
-def _valve_init(model, p0, p1, u0, x0, st):
-    """Put a valve at rest at position ``x0`` with input ``u0``."""
-    st[_X] = x0
-    st[_UPREV] = u0
-    st[_DIR] = 0.0
-    st[_STUCK] = 1.0
-    st[_USTUCK] = u0
-    st[_CAUSE] = _CAUSE_START
-    if model == HE:
-        # residual force, the "friction memory" of He et al.
-        st[_USTUCK] = 0.0
+def _valve_init(model, u0, x0):
+    """State of a valve at rest at position ``x0`` with input ``u0``."""
+    # the He model keeps its residual force in the fifth slot
+    return x0, u0, 0.0, 1.0, (0.0 if model == HE else u0), _CAUSE_START
 
 
-@numba.njit(cache=True)
-def _valve_step(model, p0, p1, u, st):
-    """Advance one valve by one sample with input ``u``; return its position."""
+@numba.njit(cache=True, inline="always")
+def _valve_step(model, p0, p1, u, x, up, d, stuck, us, cause):
+    """Advance one valve by one sample with input ``u``.
+
+    Takes and returns the state tuple ``(x, u_prev, d, stuck, u_stuck,
+    cause)``; ``x`` is the new position."""
     if model == LINEAR:
-        st[_X] = u
+        x = u
     elif model == BACKLASH:
         half = 0.5 * p0
-        if u - st[_X] > half:
-            st[_X] = u - half
-        elif st[_X] - u > half:
-            st[_X] = u + half
+        if u - x > half:
+            x = u - half
+        elif x - u > half:
+            x = u + half
     elif model == KANO or model == CHOUDHURY:
         S = p0
         J = p1
-        du = u - st[_UPREV]
+        du = u - up
         nd = 0.0
         if du > 0.0:
             nd = 1.0
@@ -95,45 +91,40 @@ def _valve_step(model, p0, p1, u, st):
             nd = -1.0
         if nd == 0.0:
             # input at rest: a moving valve stops (no reversal)
-            if st[_STUCK] == 0.0:
-                st[_STUCK] = 1.0
-                st[_USTUCK] = st[_UPREV]
-                st[_CAUSE] = _CAUSE_REST
-        elif nd != st[_DIR]:
-            if st[_DIR] != 0.0:
-                # reversal: the valve sticks where the input turned
-                st[_STUCK] = 1.0
-                st[_USTUCK] = st[_UPREV]
-                st[_CAUSE] = _CAUSE_REVERSAL
-            st[_DIR] = nd
-        d = st[_DIR]
-        if st[_STUCK] == 1.0:
+            if stuck == 0.0:
+                stuck = 1.0
+                us = up
+                cause = _CAUSE_REST
+        elif nd != d:
             if d != 0.0:
-                cause = st[_CAUSE]
+                # reversal: the valve sticks where the input turned
+                stuck = 1.0
+                us = up
+                cause = _CAUSE_REVERSAL
+            d = nd
+        if stuck == 1.0:
+            if d != 0.0:
                 if cause == _CAUSE_START:
                     thr = 0.5 * S
                 elif cause == _CAUSE_REVERSAL or model == CHOUDHURY:
                     thr = S
                 else:
                     thr = J
-                if d * (u - st[_USTUCK]) > thr:
-                    st[_X] = u - d * 0.5 * (S - J)
-                    st[_STUCK] = 0.0
+                if d * (u - us) > thr:
+                    x = u - d * 0.5 * (S - J)
+                    stuck = 0.0
         else:
-            st[_X] = u - d * 0.5 * (S - J)
-        st[_UPREV] = u
+            x = u - d * 0.5 * (S - J)
     elif model == HE:
         fs = p0
         fd = p1
-        temp = u - st[_UPREV] + st[_USTUCK]
+        temp = u - up + us
         if abs(temp) > fs:
-            ur = fd if temp > 0.0 else -fd
-            st[_USTUCK] = ur
-            st[_X] = u - ur
+            us = fd if temp > 0.0 else -fd
+            x = u - us
         else:
-            st[_USTUCK] = temp
-        st[_UPREV] = u
-    return st[_X]
+            us = temp
+    return x, u, d, stuck, us, cause
 
 
 @numba.njit(cache=True, parallel=True)
@@ -141,10 +132,13 @@ def _run_open_loop(model, op, p0, p1, x0):
     m, n = op.shape
     out = np.empty_like(op)
     for i in numba.prange(m):
-        st = np.empty(N_STATE)
-        _valve_init(model, p0[i], p1[i], op[i, 0], x0[i], st)
+        x, up, d, stuck, us, cause = _valve_init(model, op[i, 0], x0[i])
+        a = p0[i]
+        b = p1[i]
         for k in range(n):
-            out[i, k] = _valve_step(model, p0[i], p1[i], op[i, k], st)
+            x, up, d, stuck, us, cause = _valve_step(model, a, b, op[i, k], x, up, d, stuck, us,
+                                                     cause)
+            out[i, k] = x
     return out
 
 

@@ -1,0 +1,387 @@
+"""
+One-loop classifier: what, if anything, is wrong with this loop's valve?
+
+:func:`classify_loop` adds to the Backlash Index what Farenzena & Trierweiler
+(2012) assume away. A loop gets the first verdict that applies:
+
+1. ``insufficient-data``: too little usable data (gaps, a frozen PV, too few
+   cycles, too few samples per cycle); the reason says which.
+2. ``no-oscillation``: no regular oscillation.
+3. ``not-integrating``: the loop oscillates but its process is
+   self-regulating, where the BI does not apply.
+4. ``linear-oscillation``: a regular oscillation that no valve nonlinearity
+   explains (tuning or an external disturbance); send no one to the valve.
+5. ``stiction``, ``backlash`` or ``undecided`` (BI between the limits).
+
+Every verdict carries a confidence in [0, 1] and its evidence.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .bi import THRESHOLDS, BacklashIndex, backlash_index
+from .linearity import CycleShape, cycle_shape, mean_cycles
+from .oscillation import Oscillation, detect_oscillation
+
+__all__ = ["classify_loop", "LoopDiagnosis", "VERDICTS", "FAULT_VERDICTS", "integrating_screen"]
+
+#: Verdict words, in order of precedence.
+VERDICTS = ("insufficient-data", "no-oscillation", "not-integrating", "linear-oscillation",
+            "stiction", "backlash", "undecided")
+#: Verdicts that call for action.
+FAULT_VERDICTS = ("stiction", "backlash", "linear-oscillation", "undecided")
+PROCESS_TYPES = ("integrating", "self-regulating", "unknown")
+
+MIN_SAMPLES = 32
+MIN_SAMPLES_PER_PERIOD = 5.0
+#: Below this harmonic distortion of the mean PV cycle the oscillation is
+#: sinusoidal: a linear loop (calibrated on benchmarks/bench_bi_sweep.py).
+DIST_LINEAR = 0.03
+#: Ramp ratio (mean/max |dPV/dt| over the mean cycle): >= integrating,
+#: <= self-regulating, between: not established by the data.
+RAMP_INTEGRATING = 0.68
+RAMP_SELF_REGULATING = 0.50
+
+
+@dataclass(frozen=True)
+class LoopDiagnosis:
+    """Verdict on one loop, with its evidence.
+
+    Attributes
+    ----------
+    verdict : str
+        One of :data:`VERDICTS`.
+    confidence : float
+        Confidence in the verdict, 0-1.
+    reason : str
+        One sentence explaining the verdict.
+    process_type : str
+        As given by the caller (metadata).
+    process_screen : str
+        ``'metadata'`` when the type came from the caller, else the data
+        test's result: ``'integrating'``, ``'self-regulating'`` or
+        ``'unknown'``.
+    bi : float
+        Backlash Index, NaN when not computed.
+    period : float
+        Oscillation period [s], NaN when none.
+    amplitude : float
+        Half peak-to-peak oscillation amplitude [PV unit].
+    cycles : float
+        Complete cycles seen.
+    regularity : float
+        Thornhill regularity of the cycle durations.
+    evidence : dict
+        Every figure behind the verdict (JSON-serialisable).
+    oscillation, backlash, shape : optional
+        The intermediate results, for plots.
+    pv, op : numpy.ndarray
+        The analysed stretch of data.
+    sample_time : float
+        [s]
+    """
+
+    verdict: str
+    confidence: float
+    reason: str
+    process_type: str
+    process_screen: str
+    bi: float
+    period: float
+    amplitude: float
+    cycles: float
+    regularity: float
+    evidence: dict
+    oscillation: Oscillation | None = field(default=None, repr=False)
+    backlash: BacklashIndex | None = field(default=None, repr=False)
+    shape: CycleShape | None = field(default=None, repr=False)
+    pv: np.ndarray = field(default=None, repr=False)
+    op: np.ndarray = field(default=None, repr=False)
+    sample_time: float = 1.0
+
+    def to_dict(self) -> dict:
+        """The verdict and its evidence as plain JSON types."""
+        def clean(v):
+            if isinstance(v, (float, np.floating)):
+                return None if not np.isfinite(v) else round(float(v), 6)
+            if isinstance(v, (np.integer,)):
+                return int(v)
+            if isinstance(v, dict):
+                return {k: clean(x) for k, x in v.items()}
+            return v
+        return clean({"verdict": self.verdict, "confidence": self.confidence, "reason": self.reason,
+                      "process_type": self.process_type, "process_screen": self.process_screen,
+                      "bi": self.bi, "period_s": self.period, "amplitude": self.amplitude,
+                      "cycles": self.cycles, "regularity": self.regularity,
+                      "evidence": self.evidence})
+
+    def plot(self, ax=None):
+        """Trend of PV (and OP on a twin axis) with the apices marked.
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(9, 3.5))
+        if self.pv is None:
+            ax.text(0.5, 0.5, self.reason, ha="center", va="center", transform=ax.transAxes)
+            return ax
+        t = np.arange(self.pv.size) * self.sample_time
+        ax.plot(t, self.pv, color="C0", lw=0.8, label="PV")
+        if self.oscillation is not None and self.oscillation.apex_idx.size:
+            ai, sg = self.oscillation.apex_idx, self.oscillation.apex_sign
+            ax.plot(t[ai[sg > 0]], self.pv[ai[sg > 0]], "v", color="C3", ms=4)
+            ax.plot(t[ai[sg < 0]], self.pv[ai[sg < 0]], "^", color="C2", ms=4)
+        if self.op is not None:
+            ax2 = ax.twinx()
+            ax2.plot(t, self.op, color="C1", lw=0.6, alpha=0.7, label="OP")
+            ax2.set_ylabel("OP")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("PV")
+        ax.set_title(f"{self.verdict} (confidence {self.confidence:.2f})")
+        return ax
+
+
+def integrating_screen(pv_detrended, apex_idx, apex_sign, harmonics: int = 15):
+    """Data test for an integrating process, from the shape of the mean cycle.
+
+    An integrating process integrates the valve position: a valve that
+    sticks or rests in a dead band makes the PV run in straight ramps, so
+    ``|dPV/dt|`` is nearly constant over the cycle. A fast self-regulating
+    process copies the valve position: the PV steps and settles, and
+    ``|dPV/dt|`` is small most of the time.
+
+    Parameters
+    ----------
+    pv_detrended : array_like
+        PV without drift [PV unit].
+    apex_idx, apex_sign : array_like
+        PV apices.
+    harmonics : int
+        Harmonics kept when differentiating the mean cycle.
+
+    Returns
+    -------
+    screen : str
+        ``'integrating'``, ``'self-regulating'`` or ``'unknown'``.
+    ramp_ratio : float
+        ``mean |dPV/dt| / max |dPV/dt|`` over the mean cycle: about 1 for a
+        triangle, 2/pi = 0.64 for a sine, small for a square wave.
+
+    Notes
+    -----
+    A sinusoidal oscillation (a linear loop) gives 0.64 whatever the process,
+    so the test cannot tell; a self-regulating process whose time constant is
+    comparable to the period behaves like an integrator within a cycle and is
+    reported as such.
+    """
+    C = mean_cycles([pv_detrended], apex_idx, apex_sign, 128)[0]
+    if C.shape[0] < 2:
+        return "unknown", np.nan
+    m = C.mean(axis=0)
+    F = np.fft.rfft(m - m.mean())
+    n = np.arange(F.size)
+    F[n > harmonics] = 0
+    d = np.fft.irfft(1j * n * F, 128)
+    peak = np.max(np.abs(d))
+    if peak == 0:
+        return "unknown", np.nan
+    ratio = float(np.mean(np.abs(d)) / peak)
+    if ratio >= RAMP_INTEGRATING:
+        return "integrating", ratio
+    if ratio <= RAMP_SELF_REGULATING:
+        return "self-regulating", ratio
+    return "unknown", ratio
+
+
+def _longest_finite_run(mask):
+    """(start, stop) of the longest run of True."""
+    if not mask.any():
+        return 0, 0
+    d = np.diff(np.r_[0, mask.astype(np.int8), 0])
+    starts = np.flatnonzero(d == 1)
+    stops = np.flatnonzero(d == -1)
+    k = int(np.argmax(stops - starts))
+    return int(starts[k]), int(stops[k])
+
+
+def _margin(x, limit, scale):
+    """Confidence from the distance of ``x`` beyond ``limit`` on a log scale."""
+    if not np.isfinite(x) or x <= 0:
+        return 0.0
+    d = abs(np.log(x / limit))
+    return float(1.0 - np.exp(-d / scale))
+
+
+def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "unknown",
+                  method: str = "robust", min_cycles: float = 3.0) -> LoopDiagnosis:
+    """Classify one control loop from its recorded PV and OP.
+
+    Parameters
+    ----------
+    pv : array_like, shape (n,)
+        Process variable, uniformly sampled; NaN marks bad or missing samples
+        [PV unit].
+    op : array_like, shape (n,)
+        Controller output, same sampling [%].
+    sp : array_like, shape (n,), optional
+        Set point [PV unit]; used only as evidence (set-point moves).
+    sample_time : float
+        [s]
+    process_type : {'unknown', 'integrating', 'self-regulating'}
+        From the loop registry. ``'unknown'`` runs a data test.
+    method : {'robust', 'paper'}
+        Backlash Index estimator.
+    min_cycles : float
+        Fewest complete cycles for a verdict on the valve.
+
+    Returns
+    -------
+    LoopDiagnosis
+
+    Raises
+    ------
+    ValueError
+        Arrays of different lengths, a non-positive sample time, an unknown
+        process type or method.
+
+    Notes
+    -----
+    Gaps (NaN in PV or OP) are not bridged: the longest gap-free stretch is
+    analysed. The linear-oscillation test uses the harmonic distortion of the
+    mean PV cycle; a non-sinusoidal external disturbance (a square-wave load)
+    cannot be told from a valve fault this way. A process lag comparable to
+    the period rounds a stiction apex and biases the BI towards backlash.
+
+    References
+    ----------
+    .. [1] Farenzena, M., Trierweiler, J. O. (2012). Valve backlash and
+       stiction detection in integrating processes. ADCHEM 2012, 320-325.
+    .. [2] Thornhill, N. F., Huang, B., Zhang, H. (2003). Detection of multiple
+       oscillations in control loops. J. Process Control 13, 91-100.
+    """
+    if process_type not in PROCESS_TYPES:
+        raise ValueError(f"process_type must be one of {PROCESS_TYPES}, not {process_type!r}")
+    if method not in THRESHOLDS:
+        raise ValueError(f"method must be 'robust' or 'paper', not {method!r}")
+    h = float(sample_time)
+    if not np.isfinite(h) or h <= 0:
+        raise ValueError(f"sample_time must be a positive number of seconds, got {sample_time!r}")
+    pv = np.asarray(pv, dtype=float).ravel()
+    op = np.asarray(op, dtype=float).ravel()
+    if op.size != pv.size:
+        raise ValueError(f"pv has {pv.size} samples but op has {op.size}")
+    if sp is not None:
+        sp = np.asarray(sp, dtype=float).ravel()
+        if sp.size != pv.size:
+            raise ValueError(f"pv has {pv.size} samples but sp has {sp.size}")
+    base = dict(process_type=process_type, sample_time=h)
+    ev: dict = {"method": method, "samples": int(pv.size)}
+
+    def verdict(v, conf, reason, **kw):
+        out = dict(process_screen="metadata" if process_type != "unknown" else "unknown",
+                   bi=np.nan, period=np.nan, amplitude=np.nan, cycles=0.0, regularity=np.nan)
+        out.update(kw)
+        return LoopDiagnosis(verdict=v, confidence=round(float(np.clip(conf, 0.05, 0.99)), 2),
+                             reason=reason, evidence=ev, **base, **out)
+
+    good = np.isfinite(pv) & np.isfinite(op)
+    a, b = _longest_finite_run(good)
+    ev["usable_samples"] = b - a
+    ev["usable_fraction"] = round((b - a) / max(pv.size, 1), 4)
+    if b - a < MIN_SAMPLES:
+        return verdict("insufficient-data", 0.95,
+                       f"only {b - a} consecutive usable samples (need at least {MIN_SAMPLES})")
+    x, u = pv[a:b], op[a:b]
+    if np.ptp(x) == 0:
+        return verdict("insufficient-data", 0.9, "the PV does not change: frozen sensor or no data",
+                       pv=x, op=u)
+    osc = detect_oscillation(x, h)
+    spp = osc.period / h if np.isfinite(osc.period) else np.nan
+    ev.update(period_s=osc.period, cycles=osc.cycles, regularity=osc.regularity,
+              acf_at_period=osc.acf_at_period, periodic_fraction=osc.periodic_fraction,
+              samples_per_period=spp, amplitude=osc.amplitude)
+    common = dict(period=osc.period, amplitude=osc.amplitude, cycles=osc.cycles,
+                  regularity=osc.regularity, oscillation=osc, pv=x, op=u)
+    looks_periodic = osc.acf_at_period > 0.3 and np.isfinite(osc.period)
+    if not np.isfinite(osc.period) or osc.cycles < 1.5:
+        if looks_periodic:
+            return verdict("insufficient-data", 0.7,
+                           f"only {osc.cycles:.1f} cycles of an oscillation of about "
+                           f"{osc.period:.4g} s; need at least {min_cycles:g}", **common)
+        return verdict("no-oscillation", 0.8, "no oscillation: the PV has no repeating cycle",
+                       **common)
+    if spp < MIN_SAMPLES_PER_PERIOD:
+        return verdict("insufficient-data", 0.8,
+                       f"only {spp:.1f} samples per oscillation period; the waveform is lost "
+                       f"(need at least {MIN_SAMPLES_PER_PERIOD:g})", **common)
+    if not osc.is_regular:
+        conf = 0.6 + 0.3 * min(1.0, max(0.0, 1.0 - osc.regularity))
+        return verdict("no-oscillation", conf,
+                       f"no regular oscillation (regularity {osc.regularity:.2f}, "
+                       f"autocorrelation at one period {osc.acf_at_period:.2f})", **common)
+    if osc.cycles < min_cycles:
+        return verdict("insufficient-data", 0.7,
+                       f"only {osc.cycles:.1f} cycles of a {osc.period:.4g} s oscillation; "
+                       f"need at least {min_cycles:g}", **common)
+    # confidence from the amount and resolution of the data
+    c_data = min(1.0, np.sqrt(osc.cycles / 10.0)) * float(np.clip((spp - 5.0) / 15.0, 0.25, 1.0))
+    # process type: metadata first, then the shape of the cycle
+    screen, ramp = integrating_screen(osc.baseline_removed, osc.apex_idx, osc.apex_sign)
+    ev.update(ramp_ratio=ramp, process_screen=screen)
+    proc_conf = 1.0
+    if process_type == "self-regulating" or (process_type == "unknown" and screen == "self-regulating"):
+        src = "loop registry" if process_type == "self-regulating" else \
+            f"data test: the PV copies the valve's steps (ramp ratio {ramp:.2f})"
+        return verdict("not-integrating", 0.9 * c_data if process_type != "unknown" else 0.7 * c_data,
+                       f"oscillates with a period of {osc.period:.4g} s, but the process is "
+                       f"self-regulating ({src}); the Backlash Index does not apply",
+                       process_screen="metadata" if process_type != "unknown" else screen, **common)
+    if process_type == "unknown" and screen == "unknown":
+        proc_conf = 0.75
+    pscreen = "metadata" if process_type != "unknown" else screen
+    # a valve nonlinearity at all?
+    shape = cycle_shape(osc.baseline_removed, u, osc.apex_idx, osc.apex_sign)
+    op_moves = np.std(u) > 1e-9 * max(1.0, np.abs(u).max())
+    ev.update(pv_distortion=shape.pv_distortion, valve_linearity=shape.valve_linearity,
+              op_lag_cycles=shape.op_lag, op_moves=bool(op_moves))
+    if not op_moves:
+        return verdict("linear-oscillation", 0.8 * c_data,
+                       "the PV oscillates while the OP stands still: the oscillation comes from "
+                       "outside the loop (manual mode, or a disturbance)", process_screen=pscreen,
+                       shape=shape, **common)
+    if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR:
+        conf = c_data * proc_conf * (0.5 + 0.5 * (1.0 - shape.pv_distortion / DIST_LINEAR))
+        return verdict("linear-oscillation", conf,
+                       f"a sinusoidal oscillation (harmonic distortion {shape.pv_distortion:.3f}) "
+                       "that no valve nonlinearity explains: review the tuning or trace an "
+                       "external disturbance", process_screen=pscreen, shape=shape, **common)
+    bres = backlash_index(x, h, method=method)
+    ev.update(bi=bres.bi, theta_peak_mean=float(np.nanmean(bres.theta_peak)) if bres.theta_peak.size else None,
+              theta_middle_mean=float(np.nanmean(bres.theta_middle)) if bres.theta_middle.size else None,
+              rounding=bres.rounding, bi_thresholds=list(bres.thresholds))
+    if bres.verdict == "insufficient-data":
+        return verdict("insufficient-data", 0.6, f"the Backlash Index could not be measured: {bres.reason}",
+                       process_screen=pscreen, shape=shape, backlash=bres, **common)
+    lo, hi = bres.thresholds
+    if bres.verdict == "stiction":
+        conf = c_data * proc_conf * (0.55 + 0.45 * _margin(bres.bi, lo, 0.15))
+        reason = (f"sharp turns at the peaks (Backlash Index {bres.bi:.2f} <= {lo:g}): the valve "
+                  "sticks and then jumps")
+    elif bres.verdict == "backlash":
+        conf = c_data * proc_conf * (0.55 + 0.45 * _margin(bres.bi, hi, 0.15))
+        reason = (f"rounded peaks after straight ramps (Backlash Index {bres.bi:.2f} >= {hi:g}): "
+                  "the valve moves smoothly once it has crossed a dead band")
+    else:
+        conf = 0.3 * c_data * proc_conf
+        reason = (f"a valve nonlinearity, but the Backlash Index {bres.bi:.2f} lies between "
+                  f"{lo:g} and {hi:g}: stiction and backlash cannot be told apart")
+    if pscreen == "unknown" and process_type == "unknown":
+        reason += "; the process type is not known, the loop is assumed integrating"
+    return verdict(bres.verdict, conf, reason, process_screen=pscreen, bi=bres.bi, shape=shape,
+                   backlash=bres, **common)
