@@ -1,0 +1,161 @@
+"""Backlash Index: analytic shapes, simulations, invariance, thresholds, bad input."""
+import numpy as np
+import pytest
+
+from valvediag import backlash_index, simulate_loop
+from valvediag.bi import NREF, THRESHOLDS, bi_verdict
+
+
+def triangle(t, P):
+    return 2 * np.abs(((t / P) % 1) - 0.5)
+
+
+def hyperbolic_wave(t, P, w):
+    """Triangle-like wave whose apices are exactly the robust method's model:
+    -(sqrt(tau^2 + w^2) - w), slopes +-1 (w << P)."""
+    ph = (t + P / 4) % P - P / 4                      # apex of the peak at 0, valley at P/2
+    near_peak = ph < P / 4
+    tau = np.where(near_peak, ph, ph - P / 2)
+    # both branches round corners on the asymptotes -|tau| and -P/2 + |tau|,
+    # which meet at the middle points (continuous up to w^2/P)
+    r = np.sqrt(tau ** 2 + w ** 2)
+    return np.where(near_peak, -r, r - P / 2)
+
+
+@pytest.mark.parametrize("method", ["paper", "robust"])
+def test_triangle_is_stiction_with_bi_one(method):
+    h, P = 0.5, 100.0
+    t = np.arange(4000) * h
+    r = backlash_index(triangle(t, P), h, method=method)
+    assert r.bi == pytest.approx(1.0, abs=0.02)
+    assert r.verdict == "stiction"
+    assert r.period == pytest.approx(P, rel=0.01)
+    assert r.amplitude == pytest.approx(0.5, rel=0.02)
+
+
+def test_paper_bi_of_a_sine_matches_closed_form():
+    h, P = 0.5, 100.0
+    t = np.arange(4000) * h
+    r = backlash_index(np.sin(2 * np.pi * t / P), h, method="paper")
+    # small-angle frame: BI = middle slope / mean slope from a peak to its neighbours
+    expected = (2 * np.pi / P) / ((1 - np.cos(2 * np.pi * h / P)) / h)
+    assert r.bi == pytest.approx(expected, rel=0.01)
+    assert r.verdict == "backlash"
+
+
+def test_robust_recovers_the_rounding_of_its_own_model():
+    h, P, w = 1.0, 400.0, 8.0                       # rounding w/P = 0.02
+    t = np.arange(8000) * h
+    r = backlash_index(hyperbolic_wave(t, P, w), h)
+    assert r.rounding == pytest.approx(w / P, rel=0.3)   # grid of widths ~30 % apart
+    # the BI is the chord angle ratio at the reference resolution delta = P/NREF
+    # on the fitted curve: 1 / (sqrt(1 + rho^2) - rho), rho = w / delta
+    rho = r.rounding * NREF
+    assert r.bi == pytest.approx(1 / (np.sqrt(1 + rho ** 2) - rho), rel=0.05)
+    assert r.verdict == "backlash"
+
+
+@pytest.mark.parametrize("method", ["paper", "robust"])
+def test_clean_simulations(method):
+    kw = dict(kc=2.0, ti=20.0, tau=20.0, sample_time=0.1, duration=3000, sp_step=1.0)
+    sticky = simulate_loop(valve="kano", valve_params={"S": 3.0, "J": 1.5}, **kw).pv[5000:]
+    loose = simulate_loop(valve="backlash", valve_params={"DB": 3.0}, **kw).pv[5000:]
+    assert backlash_index(sticky, 0.1, method=method).verdict == "stiction"
+    assert backlash_index(loose, 0.1, method=method).verdict == "backlash"
+
+
+@pytest.fixture(scope="module")
+def noisy_backlash():
+    sim = simulate_loop(kc=1.2, ti=30.0, tau=25.0, sample_time=1.0, duration=6000, sp_step=1.0,
+                        valve="backlash", valve_params={"DB": 2.0})
+    pv = sim.pv[1000:]
+    return pv + np.random.default_rng(0).normal(0, 0.01 * np.ptp(pv), pv.size)
+
+
+@pytest.mark.parametrize("method", ["paper", "robust"])
+def test_invariant_to_scale_offset_and_time_unit(noisy_backlash, method):
+    ref = backlash_index(noisy_backlash, 1.0, method=method)
+    scaled = backlash_index(1000.0 * noisy_backlash + 537.0, 1.0, method=method)
+    minutes = backlash_index(noisy_backlash, 1.0 / 60.0, method=method)
+    assert scaled.bi == pytest.approx(ref.bi, rel=1e-6)
+    assert minutes.bi == pytest.approx(ref.bi, rel=1e-6)
+    assert scaled.verdict == minutes.verdict == ref.verdict
+    assert minutes.period == pytest.approx(ref.period / 60.0, rel=1e-9)
+
+
+def test_robust_survives_noise_where_the_paper_method_fails(noisy_backlash):
+    assert backlash_index(noisy_backlash, 1.0, method="robust").verdict == "backlash"
+    assert backlash_index(noisy_backlash, 1.0, method="paper").verdict != "backlash"
+
+
+def test_robust_ignores_drift():
+    t = np.arange(6000) * 1.0
+    tri = triangle(t, 200.0)
+    drifting = tri + 0.002 * t + 0.3 * np.sin(2 * np.pi * t / 6000)
+    r = backlash_index(drifting, 1.0)
+    assert r.verdict == "stiction" and r.bi == pytest.approx(1.0, abs=0.1)
+
+
+@pytest.mark.parametrize("method,lo,hi", [("paper", 1.5, 3.0), ("robust", 2.2, 2.4)])
+def test_thresholds(method, lo, hi):
+    assert THRESHOLDS[method] == (lo, hi)
+    assert bi_verdict(lo, method) == "stiction"
+    assert bi_verdict(hi, method) == "backlash"
+    assert bi_verdict(0.5 * (lo + hi), method) == "undecided"
+    assert bi_verdict(np.inf, method) == "backlash"
+    assert bi_verdict(np.nan, method) == "insufficient-data"
+    assert bi_verdict(2.0, method, thresholds=(1.0, 1.9)) == "backlash"
+
+
+def test_too_few_cycles_is_insufficient_data():
+    t = np.arange(300) * 1.0
+    r = backlash_index(triangle(t, 250.0), 1.0)
+    assert r.verdict == "insufficient-data"
+    assert "cycles" in r.reason and np.isnan(r.bi)
+
+
+@pytest.mark.parametrize("pv,kw,match", [
+    (np.r_[np.sin(np.arange(100.0)), np.nan, np.sin(np.arange(100.0))], {}, "non-finite values \\(first at sample 100\\)"),
+    (np.full(200, 3.0), {}, "constant"),
+    (np.arange(5.0), {}, "at least two cycles"),
+    (np.ones((10, 10)), {}, "one-dimensional"),
+])
+def test_bad_input(pv, kw, match):
+    with pytest.raises(ValueError, match=match):
+        backlash_index(pv, 1.0, **kw)
+
+
+def test_bad_time():
+    pv = np.sin(np.arange(200) / 5)
+    t = np.arange(200.0)
+    t[50] = t[49] - 1
+    with pytest.raises(ValueError, match="time does not increase at sample 50"):
+        backlash_index(pv, time=t)
+    t2 = np.cumsum(np.r_[1.0, np.random.default_rng(0).uniform(0.5, 1.5, 199)])
+    with pytest.raises(ValueError, match="not uniformly sampled"):
+        backlash_index(pv, time=t2)
+    with pytest.raises(ValueError, match="positive"):
+        backlash_index(pv, 0.0)
+    with pytest.raises(ValueError, match="method"):
+        backlash_index(pv, 1.0, method="magic")
+
+
+def test_time_array_equals_sample_time():
+    t = np.arange(4000) * 0.5
+    a = backlash_index(triangle(t, 100.0), time=t + 1e6)
+    b = backlash_index(triangle(t, 100.0), 0.5)
+    assert a.bi == b.bi
+
+
+def test_result_parts_and_plot():
+    import matplotlib
+    matplotlib.use("Agg")
+    t = np.arange(4000) * 0.5
+    r = backlash_index(triangle(t, 100.0), 0.5)
+    assert r.peaks.size >= 18 and r.valleys.size >= 18
+    assert r.middle.size == r.theta_middle.size
+    assert r.theta_peak.size == r.peaks.size + r.valleys.size
+    assert np.all(np.abs(r.bi_per_cycle[np.isfinite(r.bi_per_cycle)] - 1) < 0.05)
+    ax = r.plot(zoom_cycles=3)
+    assert "stiction" in ax.get_title()
+    assert len(ax.get_lines()) > 5
