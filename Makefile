@@ -11,7 +11,7 @@ export DO_NOT_TRACK := 1
 export PREFECT_HOME ?= $(CURDIR)/.prefect
 export MPLBACKEND := Agg
 
-.PHONY: help install test demo bench clean
+.PHONY: help install test demo serve bench clean
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -26,6 +26,41 @@ install: $(STAMP)  ## create .venv and install valvediag with its test tools
 
 test: $(STAMP)  ## run the test suite
 	$(PY) -m pytest -q
+
+# Data of the nightly scan. `make serve` deploys with these (default: data/exports,
+# data/loops.csv, data/valvediag.duckdb, out/nightly); `make demo` scans EXPORTS/LOOPS
+# when given, else a synthetic plant of DEMO_LOOPS loops, DEMO_DAYS days at DEMO_SAMPLE_TIME s.
+EXPORTS ?=
+LOOPS ?=
+DB ?=
+OUT ?=
+DEMO_DIR := out/demo
+DEMO_LOOPS ?= 40
+DEMO_DAYS ?= 1
+DEMO_SAMPLE_TIME ?= 5
+
+serve: $(STAMP)  ## start a local Prefect server + process worker, deploy nightly-scan/nightly
+	$(PY) scripts/serve.py start $(if $(EXPORTS),--exports '$(EXPORTS)') \
+	    $(if $(LOOPS),--loops '$(LOOPS)') $(if $(DB),--db '$(DB)') $(if $(OUT),--out '$(OUT)')
+
+demo: $(STAMP)  ## synthetic plant (or EXPORTS=... LOOPS=...) -> nightly flow -> out/demo/report.html
+	@set -e; \
+	if [ -n '$(EXPORTS)' ]; then \
+	    [ -n '$(LOOPS)' ] || { echo "make demo: EXPORTS=... needs LOOPS=path/to/loops.csv" >&2; exit 2; }; \
+	    exports='$(EXPORTS)'; loops='$(LOOPS)'; \
+	else \
+	    echo "Building a synthetic plant ($(DEMO_LOOPS) loops, $(DEMO_DAYS) d at $(DEMO_SAMPLE_TIME) s) in $(DEMO_DIR)/plant"; \
+	    $(VENV)/bin/valvediag synth-plant --loops $(DEMO_LOOPS) --days $(DEMO_DAYS) \
+	        --sample-time $(DEMO_SAMPLE_TIME) --out $(DEMO_DIR)/plant >/dev/null; \
+	    exports=$(DEMO_DIR)/plant/exports; loops=$(DEMO_DIR)/plant/loops.csv; \
+	fi; \
+	if api=$$($(PY) scripts/serve.py api-url 2>/dev/null); then export PREFECT_API_URL=$$api; \
+	    echo "Recording the run on the Prefect server at $$api"; fi; \
+	echo "Running the nightly-scan flow: valvediag scan --exports $$exports --loops $$loops"; \
+	$(VENV)/bin/valvediag scan --exports "$$exports" --loops "$$loops" \
+	    --db $(DEMO_DIR)/valvediag.duckdb --out $(DEMO_DIR); \
+	echo "store        $(CURDIR)/$(DEMO_DIR)/valvediag.duckdb"; \
+	echo; echo "Open $(CURDIR)/$(DEMO_DIR)/report.html in a browser."
 
 bench: $(STAMP)  ## print the benchmark figures
 	$(PY) benchmarks/run_all.py

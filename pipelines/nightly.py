@@ -1,0 +1,334 @@
+"""
+The nightly plant scan as a Prefect flow: ``nightly-scan``.
+
+The flow only orchestrates; every step is a :mod:`valvediag` function::
+
+    read-registry   valvediag.registry.read_loops_csv
+    ingest          valvediag.ingest.ingest_exports (+ Store.replace_loops)   retries 2
+    plan            valvediag.scan.plan_loops (+ Store.start_run: status 'running')
+    analyse-loop    valvediag.scan.load_loop_frames + analyse_loop, one mapped task per loop
+    rank            valvediag.scan.rank_results
+    persist         valvediag.scan.persist_results: the only task that writes results
+    write-outputs   valvediag.outputs.write_outputs: verdicts.json, work_orders.csv, report.html
+    artifacts       a table of the ranked loops and a markdown summary linking the report
+    finish-run      Store.finish_run: 'complete' only here; 'failed' if any step after plan fails
+
+The deployment ``nightly-scan/nightly`` (``prefect.yaml``, ``make serve``) and
+the ``valvediag scan`` command run this same flow; the command runs it
+in-process and shows progress through :func:`progress_to`.
+
+Notes
+-----
+DuckDB lets one process hold the store for writing. Every task opens the
+store, works and closes it; all of them run in the flow's process (the
+mapped analyses in its thread pool, where each reads its loop with its own
+read-only connection), and only ``ingest``, ``plan``, ``persist`` and
+``finish-run`` write, one at a time.
+"""
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import os
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+
+from prefect import flow, get_run_logger, task
+from prefect.artifacts import create_markdown_artifact, create_table_artifact
+from prefect.cache_policies import NO_CACHE
+from prefect.futures import as_completed
+from prefect.utilities.annotations import unmapped
+
+from valvediag.ingest import expand_paths, ingest_exports
+from valvediag.outputs import write_outputs
+from valvediag.registry import LoopSpec, read_loops_csv
+from valvediag.scan import (LoopJob, LoopResult, ScanConfig, analyse_loop, load_loop_frames,
+                            persist_results, plan_loops, rank_results)
+from valvediag.store import FAULT_VERDICTS, VERDICTS, Store, StoreLockedError
+
+__all__ = ["nightly_scan", "progress_to", "FLOW_NAME", "TABLE_ARTIFACT_KEY",
+           "REPORT_ARTIFACT_KEY", "TABLE_ARTIFACT_MAX_ROWS"]
+
+FLOW_NAME = "nightly-scan"
+TABLE_ARTIFACT_KEY = "valvediag-ranked-loops"
+REPORT_ARTIFACT_KEY = "valvediag-report"
+#: Rows of the ranked-loops table artifact; the report has every loop.
+TABLE_ARTIFACT_MAX_ROWS = 1000
+
+# --------------------------------------------------------------------------- progress
+_progress: Callable[[str, int, int], object] | None = None
+
+
+@contextlib.contextmanager
+def progress_to(callback: Callable[[str, int, int], object] | None) -> Iterator[None]:
+    """Report progress of flows run in this process to ``callback(stage, done, total)``.
+
+    Parameters
+    ----------
+    callback : callable or None
+        Called with ``stage`` ``"ingest"`` (files) or ``"analyse"`` (loops),
+        from the flow's own thread. None reports nothing.
+    """
+    global _progress
+    previous, _progress = _progress, callback
+    try:
+        yield
+    finally:
+        _progress = previous
+
+
+def _report(stage: str, done: int, total: int) -> None:
+    if _progress is not None:
+        _progress(stage, done, total)
+
+
+# ------------------------------------------------------------------------------ tasks
+def _transient(task, task_run, state) -> bool:
+    """Retry condition: only errors that may pass (the store locked by another process,
+    I/O errors other than a missing file), not bad input or a bug."""
+    exc = state.data
+    return isinstance(exc, (StoreLockedError, OSError)) and not isinstance(exc, FileNotFoundError)
+
+
+@task(name="read-registry", cache_policy=NO_CACHE)
+def read_registry(loops_csv: str) -> tuple[list[LoopSpec], list[str]]:
+    """Read ``loops.csv`` and log each problem of it (see :func:`read_loops_csv`)."""
+    loops, problems = read_loops_csv(loops_csv)
+    logger = get_run_logger()
+    logger.info("loops.csv %s: %d loops, %d problems", loops_csv, len(loops), len(problems))
+    for p in problems:
+        logger.warning("%s", p)
+    return loops, problems
+
+
+@task(name="ingest", retries=2, retry_delay_seconds=10, retry_condition_fn=_transient,
+      cache_policy=NO_CACHE)
+def ingest(db: str, exports: list[str], loops: list[LoopSpec], timezone: str | None) -> dict:
+    """Ingest the exports into the store and replace its loop registry.
+
+    Returns
+    -------
+    dict
+        ``files, rows_inserted, rows_skipped_duplicate, rows_quarantined,
+        errors`` (one line per file that failed or pattern that matched nothing).
+
+    Raises
+    ------
+    FileNotFoundError
+        No export file matches at all.
+    """
+    logger = get_run_logger()
+    _report("ingest", 0, len(expand_paths(exports)[0]))
+    with Store(db) as store:
+        report = ingest_exports(store, exports, timezone=timezone,
+                                progress=lambda done, total, _path: _report("ingest", done, total))
+        store.replace_loops(loops)
+    if report.files == 0:
+        raise FileNotFoundError(f"no export file matches {', '.join(exports)}")
+    logger.info("ingested %d files: %d rows new, %d duplicates skipped, %d quarantined",
+                report.files, report.rows_inserted, report.rows_skipped_duplicate,
+                report.rows_quarantined)
+    for e in report.errors:
+        logger.warning("%s", e)
+    return {"files": report.files, "rows_inserted": report.rows_inserted,
+            "rows_skipped_duplicate": report.rows_skipped_duplicate,
+            "rows_quarantined": report.rows_quarantined, "errors": list(report.errors)}
+
+
+@task(name="plan", cache_policy=NO_CACHE)
+def plan(db: str, loops: list[LoopSpec], config: ScanConfig, exports: list[str]
+         ) -> tuple[str, list[LoopJob]]:
+    """Plan every loop's window and register the run (status ``running``).
+
+    Returns
+    -------
+    run_id : str
+    jobs : list of LoopJob
+    """
+    with Store(db) as store:
+        jobs = plan_loops(store, loops, config)
+        run_id = store.start_run(window_start=min((j.start for j in jobs), default=None),
+                                 window_end=max((j.end for j in jobs), default=None),
+                                 exports=exports, params=config.to_json())
+    get_run_logger().info("run %s: %d loops to analyse", run_id, len(jobs))
+    return run_id, jobs
+
+
+@task(name="analyse-loop", retries=1, retry_delay_seconds=2, retry_condition_fn=_transient,
+      cache_policy=NO_CACHE, task_run_name="analyse-{job.spec.loop}")
+def analyse(db: str, job: LoopJob, config: ScanConfig) -> LoopResult:
+    """One loop: read its samples (read-only) and diagnose them (pure numerics)."""
+    return analyse_loop(job, load_loop_frames(db, job), config)
+
+
+@task(name="rank", cache_policy=NO_CACHE)
+def rank(results: list[LoopResult]) -> list[LoopResult]:
+    """Rank the loops (see :func:`valvediag.scan.rank_results`) and log counts per verdict."""
+    ranked = rank_results(results)
+    counts = _counts(ranked)
+    get_run_logger().info("verdicts: %s", ", ".join(f"{v} {n}" for v, n in counts.items()) or
+                          "no loops")
+    return ranked
+
+
+@task(name="persist", retries=2, retry_delay_seconds=10, retry_condition_fn=_transient,
+      cache_policy=NO_CACHE)
+def persist(db: str, run_id: str, ranked: list[LoopResult]) -> list[str]:
+    """Write verdicts and episodes (one transaction); return the loops newly faulty.
+
+    A loop is new when its verdict is a fault (:data:`valvediag.store.FAULT_VERDICTS`)
+    and it was not one in the latest complete run before this one.
+    """
+    with Store(db) as store:
+        previous = store.verdicts()      # latest complete run; this one is still running
+        persist_results(store, run_id, ranked)
+    before = dict(zip(previous["loop"].to_list(), previous["verdict"].to_list()))
+    new = [r.loop for r in ranked
+           if r.verdict in FAULT_VERDICTS and before.get(r.loop) not in FAULT_VERDICTS]
+    get_run_logger().info("stored %d verdicts of run %s; new faults: %s", len(ranked), run_id,
+                          ", ".join(new) or "none")
+    return new
+
+
+@task(name="write-outputs", retries=1, retry_condition_fn=_transient, cache_policy=NO_CACHE)
+def outputs(ranked: list[LoopResult], out: str, run_id: str, run_info: dict) -> dict[str, str]:
+    """Write ``verdicts.json``, ``work_orders.csv`` and ``report.html`` into ``out``."""
+    paths = {k: str(Path(p).resolve()) for k, p in
+             write_outputs(ranked, out, run_id=run_id, run_info=run_info).items()}
+    get_run_logger().info("report %s", paths["report"])
+    return paths
+
+
+@task(name="artifacts", cache_policy=NO_CACHE)
+def artifacts(ranked: list[LoopResult], paths: dict[str, str], run_id: str,
+              new_faults: list[str]) -> None:
+    """A table artifact of the ranked loops and a markdown artifact linking the report."""
+    rows = [{"rank": r.rank, "loop": r.loop, "verdict": r.verdict,
+             "confidence": r.confidence, "severity": round(r.severity, 4),
+             "bi": _num(r.bi), "period_s": _num(r.period_s),
+             "amplitude_pct_span": _num(r.amplitude_pct_span), "reason": r.reason}
+            for r in ranked[:TABLE_ARTIFACT_MAX_ROWS]]
+    shown = ("" if len(ranked) <= TABLE_ARTIFACT_MAX_ROWS
+             else f" (first {TABLE_ARTIFACT_MAX_ROWS} of {len(ranked)}; the report has all)")
+    create_table_artifact(key=TABLE_ARTIFACT_KEY, table=rows,
+                          description=f"valvediag run {run_id}: loops by rank{shown}")
+    counts = _counts(ranked)
+    act = [r for r in ranked if r.rank is not None]
+    lines = [f"# valvediag nightly scan {run_id}", "",
+             f"**{len(act)} of {len(ranked)} loops need action.** "
+             f"[Open the report](file://{paths['report']})", "",
+             "| verdict | loops |", "|---|---|",
+             *(f"| {v} | {n} |" for v, n in counts.items()), ""]
+    if new_faults:
+        lines += [f"New since the last complete run: {', '.join(new_faults)}", ""]
+    if act:
+        lines += ["| rank | loop | verdict | confidence |", "|---|---|---|---|",
+                  *(f"| {r.rank} | {r.loop} | {r.verdict} | {r.confidence:.2f} |"
+                    for r in act[:20]), ""]
+    lines += [f"- report: `{paths['report']}`", f"- work orders: `{paths['work_orders']}`",
+              f"- verdicts: `{paths['verdicts']}`"]
+    create_markdown_artifact(key=REPORT_ARTIFACT_KEY, markdown="\n".join(lines),
+                             description=f"valvediag report of run {run_id}")
+
+
+@task(name="finish-run", retries=2, retry_delay_seconds=5, retry_condition_fn=_transient,
+      cache_policy=NO_CACHE)
+def finish(db: str, run_id: str, status: str) -> None:
+    """Mark the run ``complete`` or ``failed`` in the store."""
+    with Store(db) as store:
+        store.finish_run(run_id, status)
+    get_run_logger().info("run %s %s", run_id, status)
+
+
+# ------------------------------------------------------------------------------- flow
+def _counts(results: Sequence[LoopResult]) -> dict[str, int]:
+    counts = {v: 0 for v in VERDICTS}
+    for r in results:
+        counts[r.verdict] = counts.get(r.verdict, 0) + 1
+    return {v: n for v, n in counts.items() if n}
+
+
+def _num(x, digits: int = 4):
+    return None if x is None or x != x or x in (float("inf"), float("-inf")) else round(x, digits)
+
+
+@flow(name=FLOW_NAME, log_prints=False)
+def nightly_scan(exports: str | list[str] = "data/exports", loops: str = "data/loops.csv",
+                 db: str = "data/valvediag.duckdb", out: str = "out/nightly",
+                 window_hours: float = 24.0, method: str = "robust", min_cycles: float = 3.0,
+                 timezone: str | None = None, end: dt.datetime | None = None,
+                 max_gap_s: float | None = None) -> dict:
+    """Scan every loop of the registry and write the maintenance report.
+
+    Parameters
+    ----------
+    exports : str or list of str
+        Historian export files, directories or globs. Files ingested before
+        (same content) are skipped.
+    loops : str
+        The loop registry ``loops.csv``.
+    db : str
+        The DuckDB store (created when missing); keeps the history of runs.
+    out : str
+        Output directory for ``verdicts.json``, ``work_orders.csv`` and
+        ``report.html``.
+    window_hours : float
+        Analysis window [h], ending at each loop's latest sample (or ``end``).
+    method : {'robust', 'paper'}
+        Backlash Index estimator.
+    min_cycles : float
+        Fewest oscillation cycles for a verdict on the valve [-].
+    timezone : str, optional
+        IANA zone of naive time stamps in the exports.
+    end : datetime, optional
+        Common end of every loop's window (with a UTC offset).
+    max_gap_s : float, optional
+        Longest gap bridged by interpolation [s]; default per tag.
+
+    Returns
+    -------
+    dict
+        ``run_id``, ``loops``, ``counts`` (per verdict), ``new_faults``,
+        ``outputs`` (absolute paths), ``ingest`` (counts and errors) and
+        ``registry_problems``.
+
+    Notes
+    -----
+    Relative paths are taken from the working directory: the repository
+    checkout for a deployment run (its pull step goes there).
+    """
+    logger = get_run_logger()
+    config = ScanConfig(window_hours=window_hours, end=end, method=method,
+                        min_cycles=min_cycles, timezone=timezone, max_gap_s=max_gap_s)
+    exports = [exports] if isinstance(exports, str) else list(exports)
+    db, out, loops_csv = (os.path.abspath(p) for p in (db, out, loops))
+    Path(db).parent.mkdir(parents=True, exist_ok=True)
+    logger.info("exports %s; loops %s; store %s; out %s", ", ".join(exports), loops_csv, db, out)
+
+    specs, problems = read_registry(loops_csv)
+    ingested = ingest(db, exports, specs, config.timezone)
+    run_id, jobs = plan(db, specs, config, exports)
+    try:
+        futures = analyse.map(unmapped(db), jobs, unmapped(config))
+        _report("analyse", 0, len(jobs))
+        for done, _ in enumerate(as_completed(list(futures)), 1):
+            _report("analyse", done, len(jobs))
+        ranked = rank([f.result() for f in futures])
+        new_faults = persist(db, run_id, ranked)
+        run_info = {"db": db, "loops_csv": loops_csv, "exports": exports,
+                    "window_start": min((j.start for j in jobs), default=None),
+                    "window_end": max((j.end for j in jobs), default=None),
+                    "config": config.to_json(), "registry_problems": problems,
+                    "ingest_errors": ingested["errors"], "new_faults": new_faults,
+                    "generated": dt.datetime.now(dt.timezone.utc)}
+        paths = outputs(ranked, out, run_id, run_info)
+        artifacts(ranked, paths, run_id, new_faults)
+        finish(db, run_id, "complete")
+    except BaseException:
+        logger.error("run %s failed; marking it failed in %s", run_id, db)
+        with Store(db) as store:
+            store.finish_run(run_id, "failed")
+        raise
+    return {"run_id": run_id, "loops": len(ranked), "counts": _counts(ranked),
+            "new_faults": new_faults, "outputs": paths, "ingest": ingested,
+            "registry_problems": problems}

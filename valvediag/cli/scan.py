@@ -1,0 +1,199 @@
+"""``valvediag scan``: the nightly plant scan, run here and now.
+
+The command checks its inputs, then runs the Prefect flow ``nightly-scan``
+(:mod:`pipelines.nightly`, the flow the ``nightly-scan/nightly`` deployment
+runs) in this process, with a progress display. Prefect is imported only
+inside the handler.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import sys
+import zoneinfo
+from pathlib import Path
+
+from . import CommandError
+
+HELP = """\
+Scan every control loop of a plant: ingest the historian exports into the
+DuckDB store, classify each loop of loops.csv over its latest WINDOW hours
+(stiction, backlash, linear oscillation, no oscillation, ...) and write
+OUT/report.html (ranked maintenance report), OUT/work_orders.csv (one row per
+loop needing action) and OUT/verdicts.json (every loop). The store keeps the
+samples and the history of runs; exports ingested before are skipped.
+
+This runs the same Prefect flow as the nightly deployment (nightly-scan/nightly,
+see 'make serve'), here in this process. Without PREFECT_API_URL Prefect starts
+a temporary local server for the run (a few seconds); with PREFECT_API_URL set
+(for example after 'make serve') the run also shows in that server's dashboard.
+"""
+
+EPILOG = """\
+examples:
+  valvediag scan --exports 'historian/*.csv' --loops loops.csv --db plant.duckdb --out out/
+  valvediag scan --exports exports/ --loops loops.csv --db plant.duckdb --out out/ --json
+"""
+
+
+def register(sub):
+    p = sub.add_parser("scan", help="scan a plant's loops from historian exports (the nightly "
+                                    "flow, run locally)",
+                       description=HELP, epilog=EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--exports", nargs="+", required=True, metavar="PATH_OR_GLOB",
+                   help="historian export files (CSV/Parquet, long or wide), directories or "
+                        "quoted globs ('**' recursive)")
+    p.add_argument("--loops", required=True, metavar="LOOPS_CSV",
+                   help="loop registry: loop,pv_tag,op_tag,sp_tag,mv_tag,process_type,unit,"
+                        "span,criticality,description")
+    p.add_argument("--db", required=True, metavar="PATH",
+                   help="DuckDB store, created when missing (one process may write it at a time)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output directory for report.html, work_orders.csv and verdicts.json")
+    p.add_argument("--window-hours", type=float, default=24.0, metavar="H",
+                   help="analysis window ending at each loop's latest sample (default 24)")
+    p.add_argument("--end", metavar="ISO8601",
+                   help="common end of the window for every loop, with a UTC offset, "
+                        "e.g. 2026-11-02T00:00:00+00:00 (default: each loop's latest sample)")
+    p.add_argument("--method", choices=("robust", "paper"), default="robust",
+                   help="Backlash Index estimator (default robust; 'paper' is the literal "
+                        "procedure of Farenzena & Trierweiler 2012)")
+    p.add_argument("--min-cycles", type=float, default=3.0, metavar="N",
+                   help="fewest oscillation cycles for a verdict on the valve (default 3)")
+    p.add_argument("--timezone", metavar="TZ",
+                   help="IANA time zone of naive time stamps in the exports, e.g. Europe/Berlin "
+                        "(time stamps with an offset need none)")
+    p.add_argument("--json", action="store_true",
+                   help="print verdicts.json (every loop, ranked) to stdout instead of a summary")
+    p.add_argument("-v", "--verbose", action="store_true",
+                   help="show Prefect's log lines (task runs) on stderr")
+    p.set_defaults(func=run)
+
+
+def _check_inputs(args):
+    """Validate the arguments; return ``(exports, config)`` or raise CommandError."""
+    from ..ingest import expand_paths
+    from ..registry import RegistryError, read_loops_csv
+    from ..scan import ScanConfig
+
+    if not os.path.isfile(args.loops):
+        raise CommandError(f"--loops {args.loops}: no such file")
+    try:
+        read_loops_csv(args.loops)
+    except RegistryError as exc:
+        raise CommandError(str(exc)) from None
+    files, misses = expand_paths(args.exports)
+    if not files:
+        raise CommandError(f"--exports {' '.join(args.exports)}: no file matches")
+    for m in misses:
+        print(f"valvediag scan: warning: {m}", file=sys.stderr)
+    if args.timezone:
+        try:
+            zoneinfo.ZoneInfo(args.timezone)
+        except (zoneinfo.ZoneInfoNotFoundError, ValueError):
+            raise CommandError(f"--timezone {args.timezone}: unknown time zone "
+                               f"(use an IANA name such as Europe/Berlin)") from None
+    end = None
+    if args.end:
+        try:
+            end = dt.datetime.fromisoformat(args.end)
+        except ValueError:
+            raise CommandError(f"--end {args.end}: not an ISO 8601 time") from None
+    try:
+        config = ScanConfig(window_hours=args.window_hours, end=end, method=args.method,
+                            min_cycles=args.min_cycles, timezone=args.timezone)
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise CommandError(f"--out {args.out}: exists and is not a directory")
+    _check_store(args.db)
+    return list(args.exports), config
+
+
+def _check_store(db: str) -> None:
+    """Fail early, in one line, when the store cannot be opened for writing."""
+    import duckdb
+
+    from ..store import Store, StoreLockedError
+
+    path = Path(db)
+    if path.is_dir():
+        raise CommandError(f"--db {db}: is a directory; give a file such as {db}/valvediag.duckdb")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        Store(path).close()
+    except StoreLockedError as exc:
+        raise CommandError(str(exc)) from None
+    except (duckdb.Error, OSError) as exc:
+        raise CommandError(f"--db {db}: cannot open the store: {' '.join(str(exc).split())}"
+                           ) from None
+
+
+class _StageProgress:
+    """One :class:`~valvediag.progress.ProgressBar` per flow stage."""
+
+    LABELS = {"ingest": "ingesting exports", "analyse": "analysing loops"}
+
+    def __init__(self):
+        self.bars = {}
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        from ..progress import ProgressBar
+
+        if stage not in self.bars:
+            self.bars[stage] = ProgressBar(self.LABELS.get(stage, stage))
+        self.bars[stage](done, total)
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def run(args) -> int:
+    exports, config = _check_inputs(args)
+    if not args.verbose:   # Prefect's console lines; the API still records them
+        os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "WARNING")
+    from pipelines.nightly import nightly_scan, progress_to
+
+    with progress_to(_StageProgress()):
+        state = nightly_scan(exports=exports, loops=args.loops, db=args.db, out=args.out,
+                             window_hours=config.window_hours, method=config.method,
+                             min_cycles=config.min_cycles, timezone=config.timezone,
+                             end=config.end, return_state=True)
+    if not state.is_completed():
+        exc = state.result(raise_on_failure=False)
+        detail = _one_line(exc) if isinstance(exc, BaseException) else (state.message or state.name)
+        raise CommandError(f"the scan failed: {detail}")
+    summary = state.result()
+    if args.json:
+        sys.stdout.write(Path(summary["outputs"]["verdicts"]).read_text(encoding="utf-8"))
+        sys.stdout.write("\n")
+    else:
+        _print_summary(summary)
+    for line in summary["ingest"]["errors"] + summary["registry_problems"]:
+        print(f"valvediag scan: warning: {line}", file=sys.stderr)
+    return 0
+
+
+def _print_summary(summary: dict) -> None:
+    verdicts = json.loads(Path(summary["outputs"]["verdicts"]).read_text(encoding="utf-8"))
+    counts = ", ".join(f"{v} {n}" for v, n in summary["counts"].items())
+    print(f"run {summary['run_id']}: {summary['loops']} loops ({counts})")
+    ranked = [v for v in verdicts["loops"] if v.get("rank") is not None]
+    if ranked:
+        new = set(summary["new_faults"])
+        print(f"\n{'rank':>4s}  {'loop':16s} {'verdict':18s} {'conf':>5s} {'severity':>8s}")
+        for v in ranked[:20]:
+            print(f"{v['rank']:4d}  {v['loop']:16s} {v['verdict']:18s} {v['confidence']:5.2f} "
+                  f"{v['severity']:8.3f}{'  new' if v['loop'] in new else ''}")
+        if len(ranked) > 20:
+            print(f"      ... {len(ranked) - 20} more in the report")
+    else:
+        print("no loop needs action")
+    out = summary["outputs"]
+    print(f"\nreport       {out['report']}\nwork orders  {out['work_orders']}\n"
+          f"verdicts     {out['verdicts']}")
