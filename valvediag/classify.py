@@ -35,7 +35,7 @@ FAULT_VERDICTS = ("stiction", "backlash", "linear-oscillation", "undecided")
 PROCESS_TYPES = ("integrating", "self-regulating", "unknown")
 
 MIN_SAMPLES = 32
-MIN_SAMPLES_PER_PERIOD = 5.0
+MIN_SAMPLES_PER_PERIOD = 8.0
 #: Below this harmonic distortion of the mean PV cycle the oscillation is
 #: sinusoidal: a linear loop (calibrated on benchmarks/bench_bi_sweep.py).
 DIST_LINEAR = 0.03
@@ -330,7 +330,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        f"only {osc.cycles:.1f} cycles of a {osc.period:.4g} s oscillation; "
                        f"need at least {min_cycles:g}", **common)
     # confidence from the amount and resolution of the data
-    c_data = min(1.0, np.sqrt(osc.cycles / 10.0)) * float(np.clip((spp - 5.0) / 15.0, 0.25, 1.0))
+    c_data = min(1.0, np.sqrt(osc.cycles / 10.0)) * float(np.clip((spp - 5.0) / 15.0, 0.3, 1.0))
     # process type: metadata first, then the shape of the cycle
     screen, ramp = integrating_screen(osc.baseline_removed, osc.apex_idx, osc.apex_sign)
     ev.update(ramp_ratio=ramp, process_screen=screen)
@@ -362,9 +362,14 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        "that no valve nonlinearity explains: review the tuning or trace an "
                        "external disturbance", process_screen=pscreen, shape=shape, **common)
     bres = backlash_index(x, h, method=method)
-    ev.update(bi=bres.bi, theta_peak_mean=float(np.nanmean(bres.theta_peak)) if bres.theta_peak.size else None,
-              theta_middle_mean=float(np.nanmean(bres.theta_middle)) if bres.theta_middle.size else None,
-              rounding=bres.rounding, bi_thresholds=list(bres.thresholds))
+    def finite_mean(a):
+        a = np.asarray(a, dtype=float)
+        a = a[np.isfinite(a)]
+        return float(a.mean()) if a.size else None
+
+    ev.update(bi=bres.bi, theta_peak_mean=finite_mean(bres.theta_peak),
+              theta_middle_mean=finite_mean(bres.theta_middle), rounding=bres.rounding,
+              bi_thresholds=list(bres.thresholds))
     if bres.verdict == "insufficient-data":
         return verdict("insufficient-data", 0.6, f"the Backlash Index could not be measured: {bres.reason}",
                        process_screen=pscreen, shape=shape, backlash=bres, **common)

@@ -191,8 +191,11 @@ def record(case: LoopCase, samples_per_period: float | None, noise_pct: float,
     ----------
     case : LoopCase
     samples_per_period : float or None
-        Target samples per oscillation period; ``None`` keeps the fine
-        record. The sampling phase is random.
+        Nominal samples per oscillation period; ``None`` keeps the fine
+        record. The sampling phase is random and the sample time is the
+        nominal one times a random factor within +-3 %: plant historians are
+        not phase-locked to an oscillation (a sample time of exactly P/n
+        would sample every cycle at the same phases).
     noise_pct : float
         White PV noise, standard deviation as a percentage of the oscillation
         amplitude [%].
@@ -209,7 +212,7 @@ def record(case: LoopCase, samples_per_period: float | None, noise_pct: float,
         h = FINE_STEP
         pv, op = case.pv.copy(), case.op.copy()
     else:
-        h = case.period / samples_per_period
+        h = case.period / samples_per_period * rng.uniform(0.97, 1.03)
         tn = np.arange(rng.uniform(0, h), t[-1], h)
         pv = np.interp(tn, t, case.pv)
         op = np.interp(tn, t, case.op)
