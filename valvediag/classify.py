@@ -316,15 +316,15 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                            f"{osc.period:.4g} s; need at least {min_cycles:g}", **common)
         return verdict("no-oscillation", 0.8, "no oscillation: the PV has no repeating cycle",
                        **common)
-    if spp < MIN_SAMPLES_PER_PERIOD:
-        return verdict("insufficient-data", 0.8,
-                       f"only {spp:.1f} samples per oscillation period; the waveform is lost "
-                       f"(need at least {MIN_SAMPLES_PER_PERIOD:g})", **common)
     if not osc.is_regular:
         conf = 0.6 + 0.3 * min(1.0, max(0.0, 1.0 - osc.regularity))
         return verdict("no-oscillation", conf,
                        f"no regular oscillation (regularity {osc.regularity:.2f}, "
                        f"autocorrelation at one period {osc.acf_at_period:.2f})", **common)
+    if spp < MIN_SAMPLES_PER_PERIOD:
+        return verdict("insufficient-data", 0.8,
+                       f"only {spp:.1f} samples per oscillation period; the waveform is lost "
+                       f"(need at least {MIN_SAMPLES_PER_PERIOD:g})", **common)
     if osc.cycles < min_cycles:
         return verdict("insufficient-data", 0.7,
                        f"only {osc.cycles:.1f} cycles of a {osc.period:.4g} s oscillation; "
