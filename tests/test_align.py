@@ -160,3 +160,61 @@ def test_valid_points_lie_between_neighbouring_good_samples(steps):
         assert good[i] and good[i + 1] and tg[i + 1] - tg[i] <= 3.0
         lo, hi = sorted((vals[i], vals[i + 1]))
         assert lo - 1e-9 <= a.pv[k] <= hi + 1e-9
+
+
+# ------------------------------------------------ gaps of compressed tags
+
+def test_tag_max_gap_regular_and_compressed_by_hand():
+    from valvediag.align import tag_max_gap
+
+    regular = np.r_[np.arange(0, 100), np.arange(400, 500)] * 1_000_000  # one 301 s gap
+    assert tag_max_gap(regular, np.zeros(regular.size)) == 5.0
+    # compressed: intervals 1,1,1,10 repeated -> median 1, 25 % long, p99 = 10
+    steps = np.tile([1, 1, 1, 10], 30)
+    ts = np.r_[0, np.cumsum(steps)] * 1_000_000
+    assert tag_max_gap(ts, np.zeros(ts.size)) == pytest.approx(50.0)
+    # a bad sample removes the intervals around it from the statistics
+    v = np.zeros(ts.size)
+    v[1:] = np.nan
+    assert np.isnan(tag_max_gap(ts, v)) and tag_max_gap(ts, v, sample_time=2.0) == 10.0
+    # fewer than 20 intervals: the median rule
+    assert tag_max_gap(ts[:10], np.zeros(10)) == 5.0
+
+
+def _compressed_sine(seconds=7200, period=300.0, dev=0.02, seed=0):
+    from valvediag.synthplant import swinging_door
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(float(seconds))
+    x = np.sin(2 * np.pi * t / period) + rng.normal(0, 0.003, t.size)
+    keep = swinging_door(x, dev)
+    return t, x, keep
+
+
+def test_compressed_pv_is_bridged_across_its_usual_spacing():
+    t, x, keep = _compressed_sine()
+    assert keep.mean() < 0.2                                 # heavily compressed
+    pv = frame(t[keep], x[keep])
+    op = frame(t, np.cos(2 * np.pi * t / 300.0))             # sampled every second
+    a = align_loop({"pv": pv, "op": op}, sample_time=1.0)
+    assert a.segments == ((0, a.n),)                         # nothing split
+    assert a.max_gaps["op"] == 5.0 and a.max_gaps["pv"] > 5 * np.median(np.diff(t[keep]))
+    # the interpolated PV follows the signal within twice the compression deviation
+    assert np.max(np.abs(a.pv - x[: a.n])) < 2 * 0.02 + 0.02
+    # the old fixed rule (5 x median spacing) cut it into pieces
+    old = align_loop({"pv": pv, "op": op}, sample_time=1.0, max_gap=5.0)
+    assert len(old.segments) > 20
+
+
+def test_a_bad_state_or_an_unusually_long_gap_still_splits_a_compressed_tag():
+    t, x, keep = _compressed_sine()
+    idx = np.flatnonzero(keep)
+    vals = x[idx].copy()
+    vals[len(idx) // 2] = np.nan                             # an I/O Timeout row
+    a = align_loop({"pv": frame(t[idx], vals)}, sample_time=1.0)
+    assert len(a.segments) == 2
+    # an outage far longer than the tag's own longest usual spacings
+    cut = (t[idx] < 3000) | (t[idx] > 4200)
+    b = align_loop({"pv": frame(t[idx][cut], x[idx][cut])}, sample_time=1.0)
+    assert len(b.segments) == 2 and b.max_gap < 1200
+    assert not b.valid[3100:4100].any()

@@ -164,3 +164,15 @@ def test_coarse_resolution_against_span():
 def test_no_pv_data():
     q = measure({"pv": frame([], []), "op": frame([0, 1], [1.0, 2.0])})
     assert "no PV data" in q.issues
+
+
+def test_frozen_manual_loop_is_held_not_saturated():
+    t, _, _ = clean_loop()
+    pv = np.full(N, 42.0)
+    op = np.where(t < 1800, 50.0, 53.0)       # an operator moves the OP once, in manual
+    q = measure({"pv": frame(t, pv), "op": frame(t, op)})
+    assert q.saturation_pct == 0.0
+    assert q.op_held_pct == pytest.approx(100.0)
+    assert not any("saturated" in i for i in q.issues)
+    assert any(i.startswith("OP held constant for 100.0% of the time") for i in q.issues)
+    assert any("PV frozen" in i for i in q.issues)

@@ -7,8 +7,18 @@ reporting, compression). The analysis needs one uniform time base. The rules:
 * **Analog signals (PV, OP, MV)** are interpolated linearly between two
   consecutive *good* samples, which is how a historian reconstructs
   compressed data [1]_. A grid point is valid only when it falls on a good
-  sample or between two good samples that are at most ``max_gap`` apart with
-  no bad sample (digital state) between them. There is no extrapolation.
+  sample or between two good samples that are at most the tag's ``max_gap``
+  apart with no bad sample (digital state) between them. There is no
+  extrapolation.
+* **What is a gap.** A bad-state row always splits the data. Otherwise an
+  interval between two good samples is a gap only when it is much longer
+  than the tag's *own* typical spacing (:func:`tag_max_gap`): five times the
+  median spacing for a regularly sampled tag, and for a compressed tag
+  (irregular spacing: more than 2 % of its intervals longer than 1.5 x the
+  median) also five times the 99th percentile of its spacings. A compressed tag stores no point while
+  the signal stays on a straight line or inside its dead band, so long
+  spacings are normal there and are bridged; the historian marks a real
+  outage with a digital state (``I/O Timeout``, ``Shutdown``), which splits.
 * **Held signals (SP, mode)** keep their last sample (step), as exception-
   reported tags mean "unchanged until the next sample". A bad state makes the
   signal invalid until the next good sample.
@@ -32,10 +42,19 @@ import numpy as np
 import polars as pl
 
 __all__ = ["AlignedLoop", "align_loop", "median_spacing", "contiguous_segments",
-           "to_epoch_us", "MAX_GAP_FACTOR", "MAX_GRID_POINTS"]
+           "to_epoch_us", "tag_max_gap", "MAX_GAP_FACTOR", "COMPRESSED_GAP_FACTOR",
+           "REGULAR_SPREAD", "IRREGULAR_SHARE", "MAX_GRID_POINTS"]
 
-#: Default ``max_gap`` in multiples of the sample time.
+#: Default ``max_gap``: multiples of a tag's median spacing (and of the grid step).
 MAX_GAP_FACTOR = 5.0
+#: Compressed tags: ``max_gap`` is at least this many times the 99th percentile
+#: of the tag's spacings.
+COMPRESSED_GAP_FACTOR = 5.0
+#: A tag with more than ``IRREGULAR_SHARE`` of its intervals longer than
+#: ``REGULAR_SPREAD`` times its median interval is taken as compressed
+#: (exception or swinging-door storage), not as regularly sampled.
+REGULAR_SPREAD = 1.5
+IRREGULAR_SHARE = 0.02
 #: Largest grid align_loop builds (about 1 GB of arrays).
 MAX_GRID_POINTS = 20_000_000
 _LINEAR_ROLES = ("pv", "op", "mv")
@@ -69,11 +88,14 @@ class AlignedLoop:
     sample_time : float
         Grid spacing [s].
     max_gap : float
-        Longest interval interpolated across [s].
+        Longest interval interpolated across in the PV [s].
     start : datetime.datetime
         Time of ``t = 0`` (UTC).
     role_valid : mapping of str to numpy.ndarray
         Validity mask of every role present.
+    max_gaps : mapping of str to float
+        Longest interval interpolated across, per analog role (``pv``, ``op``,
+        ``mv``) [s].
     """
 
     t: np.ndarray
@@ -89,6 +111,7 @@ class AlignedLoop:
     max_gap: float
     start: dt.datetime | None
     role_valid: Mapping[str, np.ndarray] = field(default_factory=dict)
+    max_gaps: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self):
         for name in ("t", "time", "pv", "op", "sp", "mv", "mode", "valid"):
@@ -194,6 +217,57 @@ def median_spacing(ts_us: np.ndarray) -> float:
     return float(np.median(d)) / _US if d.size else float("nan")
 
 
+def tag_max_gap(ts_us: np.ndarray, value: np.ndarray, sample_time: float = 0.0) -> float:
+    """Longest interval between two good samples of one tag that is not a gap [s].
+
+    Parameters
+    ----------
+    ts_us : numpy.ndarray
+        Time stamps, sorted and distinct [us since the epoch].
+    value : numpy.ndarray
+        Values; NaN marks a bad sample (digital state).
+    sample_time : float, optional
+        Grid step [s]; the result is never below ``MAX_GAP_FACTOR`` grid steps.
+
+    Returns
+    -------
+    float
+        ``MAX_GAP_FACTOR * median(d)`` for a regularly sampled tag, and
+        ``max(MAX_GAP_FACTOR * median(d), COMPRESSED_GAP_FACTOR * p99(d))``
+        for a compressed one, where ``d`` are the intervals between
+        consecutive good samples with no bad sample between them; at least
+        ``MAX_GAP_FACTOR * sample_time``. NaN when the tag has fewer than two
+        consecutive good samples and no ``sample_time`` is given.
+
+    Notes
+    -----
+    A tag is compressed when more than ``IRREGULAR_SHARE`` (2 %) of ``d``
+    exceed ``REGULAR_SPREAD`` (1.5) times the median; a regularly sampled tag
+    has nearly all intervals equal, its few real gaps excepted. Even light
+    exception reporting (80-90 % of the points kept) leaves the flat stretches
+    near the apices with intervals of many scan periods. A compressed tag's
+    normal spacing reaches up to the historian's compression or exception
+    maximum time (which the data do not state), so the threshold scales with
+    its longest usual spacings, not the median. An unmarked outage shorter
+    than that cannot be told from a compressed flat stretch and is bridged by
+    a straight line; historians normally mark outages with a digital state
+    (``I/O Timeout``, ``Shutdown``), which always splits. With fewer than 20
+    intervals the median rule is used.
+    """
+    v = np.asarray(value, dtype=float)
+    ok = ~np.isnan(v)
+    d = np.diff(np.asarray(ts_us, dtype=np.int64))[ok[1:] & ok[:-1]] / _US
+    d = d[d > 0]
+    floor = MAX_GAP_FACTOR * sample_time if sample_time and np.isfinite(sample_time) else 0.0
+    if d.size == 0:
+        return floor if floor > 0 else float("nan")
+    med = float(np.median(d))
+    gap = MAX_GAP_FACTOR * med
+    if d.size >= 20 and np.mean(d > REGULAR_SPREAD * med) > IRREGULAR_SHARE:
+        gap = max(gap, COMPRESSED_GAP_FACTOR * float(np.percentile(d, 99)))
+    return max(gap, floor)
+
+
 def contiguous_segments(mask: np.ndarray) -> tuple[tuple[int, int], ...]:
     """``(start, stop)`` index pairs of the runs of True in ``mask`` (stop exclusive)."""
     m = np.concatenate(([False], np.asarray(mask, bool), [False]))
@@ -261,8 +335,10 @@ def align_loop(frames: Mapping[str, pl.DataFrame], *, sample_time: float | None 
         Grid spacing [s]. Default: median spacing of the PV time stamps, which
         is robust to occasional gaps and to compression.
     max_gap : float, optional
-        Longest interval between two good samples that is interpolated across
-        [s]. Default ``MAX_GAP_FACTOR * sample_time`` (5x).
+        Longest interval between two good samples that is interpolated across,
+        for every analog role [s]. Default: per tag, :func:`tag_max_gap` (five
+        times the tag's median spacing; for a compressed tag at least five
+        times the 99th percentile of its spacings).
     start, end : datetime, optional
         Grid extent (timezone-aware). Default: first and last PV time stamp.
 
@@ -282,10 +358,10 @@ def align_loop(frames: Mapping[str, pl.DataFrame], *, sample_time: float | None 
       empty grid; the quality screen then reports "no PV data".
     * The mode tag's samples are held as text: the status text when the value
       is NULL (``MAN``, ``AUTO``...), else the number formatted as text.
-    * The 5x ``max_gap`` rule splits heavily compressed tags wherever the
-      historian stored no point for longer than five sample times (for
-      example long flat stretches). Oscillating stretches keep enough points.
-      Pass a larger ``max_gap`` to bridge longer compression intervals.
+    * Gaps are judged per tag against its own spacing (:func:`tag_max_gap`),
+      so a compressed PV is bridged across its usual long spacings while a
+      regularly sampled OP still splits at a few missing samples. A bad-state
+      row always splits. Pass ``max_gap`` to impose one limit on all tags.
     * SP and mode are held for any length of time (exception reporting);
       :meth:`Store.fetch_loop` includes their last sample before the window.
     """
@@ -300,7 +376,7 @@ def align_loop(frames: Mapping[str, pl.DataFrame], *, sample_time: float | None 
         sample_time = median_spacing(pv_us)
     if sample_time is not None and not np.isnan(sample_time) and sample_time <= 0:
         raise ValueError(f"sample_time must be positive, got {sample_time}")
-    max_gap = MAX_GAP_FACTOR * sample_time if max_gap is None else float(max_gap)
+    fixed_gap = None if max_gap is None else float(max_gap)
 
     t0 = _datetime_us(start, "start") if start else (int(pv_us[0]) if pv_us.size else None)
     t1 = _datetime_us(end, "end") if end else (int(pv_us[-1]) if pv_us.size else None)
@@ -318,12 +394,17 @@ def align_loop(frames: Mapping[str, pl.DataFrame], *, sample_time: float | None 
 
     signals: dict[str, np.ndarray] = {}
     role_valid: dict[str, np.ndarray] = {}
-    max_gap_us = int(round(max_gap * _US)) if np.isfinite(max_gap) else np.iinfo(np.int64).max
+    max_gaps: dict[str, float] = {}
+    st = float(sample_time) if sample_time is not None and np.isfinite(sample_time) else 0.0
     for role, f in prepared.items():
         ts = to_epoch_us(f["ts"])
         if role in _LINEAR_ROLES:
             value = f["value"].cast(pl.Float64).fill_null(np.nan).to_numpy()
-            signals[role], role_valid[role] = _interpolate(grid, ts, value, max_gap_us)
+            gap = fixed_gap if fixed_gap is not None else tag_max_gap(ts, value, st)
+            max_gaps[role] = gap
+            gap_us = (int(round(gap * _US)) if np.isfinite(gap) and gap < 1e12
+                      else np.iinfo(np.int64).max)
+            signals[role], role_valid[role] = _interpolate(grid, ts, value, gap_us)
         elif role == "sp":
             value = f["value"].cast(pl.Float64).fill_null(np.nan).to_numpy()
             signals[role], role_valid[role] = _hold(grid, ts, value, ~np.isnan(value))
@@ -341,5 +422,5 @@ def align_loop(frames: Mapping[str, pl.DataFrame], *, sample_time: float | None 
         t=(grid - t0) / _US, time=grid.astype("datetime64[us]"), pv=signals["pv"],
         op=signals.get("op"), sp=signals.get("sp"), mv=signals.get("mv"),
         mode=signals.get("mode"), valid=valid, segments=contiguous_segments(valid),
-        sample_time=float(sample_time), max_gap=float(max_gap), start=start_dt,
-        role_valid=role_valid)
+        sample_time=float(sample_time), max_gap=float(max_gaps.get("pv", float("nan"))),
+        start=start_dt, role_valid=role_valid, max_gaps=max_gaps)

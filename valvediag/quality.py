@@ -5,13 +5,16 @@ Data-quality screen of one loop: is the data fit for valve diagnosis?
 
 * **bad states**: share of PV/OP rows that are digital states (value NULL);
 * **gaps**: intervals without any sample longer than the alignment's
-  ``max_gap``;
+  ``max_gap`` of that tag (see :func:`valvediag.align.tag_max_gap`);
 * **frozen sensor**: long runs of exactly identical PV values;
 * **compression**: raw samples per grid point, median raw spacing against the
   grid, irregular spacing, and step-held (repeated) values. Below about ten
   samples per oscillation period the waveform shape, and with it the
   stiction/backlash signature, is lost [1]_;
-* **saturation**: OP at 0/100 % or stuck at its own minimum/maximum;
+* **saturation**: OP at 0/100 % or stuck at its own minimum/maximum while it
+  moves otherwise;
+* **held OP**: an OP that stays exactly constant for long stretches (manual
+  mode, or a frozen output), reported as such and not as saturation;
 * **manual mode**: share of time in manual, when the loop has a mode tag;
 * **PV resolution**: the smallest PV step, against the span when known.
 
@@ -58,6 +61,7 @@ LIMITS = {
     "repeat_fraction": 0.5,    # share of repeated consecutive PV values -> step-held
     "resolution_pct": 0.1,     # [% of span] PV step, above -> coarse
     "op_limit_tol": 0.5,       # [%] distance from 0/100 counted as saturated
+    "op_held_pct": 5.0,        # [%] of valid OP points in constant runs (>= frozen_min_s)
 }
 
 
@@ -97,7 +101,8 @@ class DataQuality:
         The raw PV looks compressed or step-held (see Notes).
     saturation_pct : float or None
         Valid OP points at 0/100 % or at its own min/max for a long stretch
-        [%]; None without OP.
+        [%]; None without OP. Runs at the OP's own min/max count only when
+        the OP moves outside them (not when it steps between held levels).
     manual_pct : float or None
         Time in a manual mode among the time with a known mode [%]; None
         without a mode tag or when no mode text is understood.
@@ -105,6 +110,10 @@ class DataQuality:
         Smallest non-zero step between raw PV values [PV unit].
     sample_time : float
         Grid spacing [s].
+    op_held_pct : float or None
+        Valid OP points inside runs of exactly identical values lasting at
+        least ``frozen_min_points`` and ``frozen_min_s`` [%] (manual mode, a
+        frozen output); None without OP.
     issues : tuple of str
         Human-readable findings, one line each.
 
@@ -136,6 +145,7 @@ class DataQuality:
     pv_resolution: float | None
     sample_time: float
     issues: tuple[str, ...] = field(default_factory=tuple)
+    op_held_pct: float | None = None
 
     def samples_per_cycle(self, period_s: float) -> float:
         """Raw PV samples per oscillation period of ``period_s`` [s] (below ~10: shape lost)."""
@@ -160,15 +170,16 @@ def _ts_seconds(frame: pl.DataFrame) -> np.ndarray:
     return np.sort(to_epoch_us(frame["ts"].drop_nulls())) / 1e6
 
 
-def _gaps(frame: pl.DataFrame, aligned: AlignedLoop) -> list[float]:
-    """Intervals [s] longer than max_gap between samples, window edges included."""
+def _gaps(frame: pl.DataFrame, aligned: AlignedLoop, role: str) -> list[float]:
+    """Intervals [s] longer than the role's max_gap between samples, window edges included."""
     t = _ts_seconds(frame)
     if aligned.n and aligned.start is not None:
         t0 = aligned.start.timestamp()
         t = np.concatenate(([t0], t[(t >= t0) & (t <= t0 + aligned.t[-1])],
                             [t0 + aligned.t[-1]]))
     d = np.diff(t)
-    return d[d > aligned.max_gap].tolist()
+    limit = aligned.max_gaps.get(role, aligned.max_gap)
+    return d[d > limit].tolist()
 
 
 def _runs(mask: np.ndarray, min_points: int) -> list[tuple[int, int]]:
@@ -194,13 +205,28 @@ def _frozen(aligned: AlignedLoop, span: float | None) -> tuple[float, float]:
     return _pct(frozen, ok.sum()), float(longest)
 
 
-def _saturation(aligned: AlignedLoop) -> float | None:
+def _held_runs(op: np.ndarray, ok: np.ndarray, min_pts: int) -> np.ndarray:
+    """Mask of valid points inside runs of exactly identical values of >= min_pts points."""
+    held = np.zeros(op.size, bool)
+    if op.size < 2:
+        return held
+    same = ok[1:] & ok[:-1] & (np.diff(op) == 0)
+    for a, b in _runs(same, max(min_pts - 1, 1)):
+        held[a:b + 1] = True
+    return held
+
+
+def _saturation(aligned: AlignedLoop) -> tuple[float | None, float | None]:
+    """(% of valid OP points saturated, % held constant); None without OP."""
     op = aligned.op
     if op is None:
-        return None
+        return None, None
     ok = aligned.role_valid["op"]
     if not ok.any():
-        return float("nan")
+        return float("nan"), float("nan")
+    min_held = max(LIMITS["frozen_min_points"],
+                   int(math.ceil(LIMITS["frozen_min_s"] / aligned.sample_time)))
+    held = _held_runs(op, ok, min_held)
     tol = LIMITS["op_limit_tol"]
     sat = ok & ((op <= tol) | (op >= 100.0 - tol))
     lo, hi = np.nanmin(op[ok]), np.nanmax(op[ok])
@@ -208,10 +234,16 @@ def _saturation(aligned: AlignedLoop) -> float | None:
         eps = 1e-9 * (hi - lo)
         min_pts = max(LIMITS["saturation_min_points"],
                       int(math.ceil(LIMITS["saturation_min_s"] / aligned.sample_time)))
+        edge_runs = np.zeros(op.size, bool)
         for edge in (lo, hi):
             for a, b in _runs(ok & (np.abs(op - edge) <= eps), min_pts):
-                sat[a:b] = True
-    return _pct(sat.sum(), ok.sum())
+                edge_runs[a:b] = True
+        # an OP resting at its own min/max is at a limit only when it moves
+        # elsewhere; an OP that steps between held levels (manual) is not
+        rest = ok & ~edge_runs
+        if rest.sum() >= LIMITS["saturation_min_points"] and held[rest].mean() < 0.5:
+            sat |= edge_runs
+    return _pct(sat.sum(), ok.sum()), _pct((held & ok).sum(), ok.sum())
 
 
 def _manual(aligned: AlignedLoop) -> tuple[float | None, str | None]:
@@ -267,9 +299,11 @@ def quality_metrics(aligned: AlignedLoop, frames: Mapping[str, pl.DataFrame], *,
     min/max must last at least ``frozen_min_points`` grid points and
     ``frozen_min_s`` (600 s), resp. ``saturation_min_points`` and
     ``saturation_min_s`` (60 s). A constant OP (manual mode or a frozen
-    signal) is not counted as saturation. Manual time is time-weighted on the
-    grid with the held mode; texts outside :data:`MANUAL_MODES` and
-    :data:`AUTO_MODES` are left out of the share.
+    signal) is not counted as saturation, nor is an OP that steps between
+    held levels (an operator moving it in manual): that is ``op_held_pct``.
+    Manual time is time-weighted on the grid with the held mode; texts
+    outside :data:`MANUAL_MODES` and :data:`AUTO_MODES` are left out of the
+    share.
     """
     span = None if span is None or not math.isfinite(span) else float(span)
     issues: list[str] = []
@@ -285,7 +319,7 @@ def quality_metrics(aligned: AlignedLoop, frames: Mapping[str, pl.DataFrame], *,
         issues.append("no PV data")
     valid_pct = _pct(aligned.valid.sum(), aligned.n)
 
-    gaps = [g for r in core for g in _gaps(frames[r], aligned)] if aligned.n else []
+    gaps = [g for r in core for g in _gaps(frames[r], aligned, r)] if aligned.n else []
     frozen_pct, longest_frozen = _frozen(aligned, span)
     med, spread, repeat, resolution = (_pv_raw_stats(pv) if pv is not None and pv.height
                                        else (float("nan"), float("nan"), float("nan"), None))
@@ -294,7 +328,7 @@ def quality_metrics(aligned: AlignedLoop, frames: Mapping[str, pl.DataFrame], *,
     compressed = bool(
         (med > LIMITS["spacing_ratio"] * aligned.sample_time)
         or (spread > LIMITS["spacing_spread"]) or step_held)
-    saturation = _saturation(aligned)
+    saturation, op_held = _saturation(aligned)
     manual, mode_issue = _manual(aligned)
 
     if bad_pct > LIMITS["bad_pct"]:
@@ -315,6 +349,9 @@ def quality_metrics(aligned: AlignedLoop, frames: Mapping[str, pl.DataFrame], *,
                       f"waveform shape may be distorted")
     if saturation is not None and saturation > LIMITS["saturation_pct"]:
         issues.append(f"OP saturated for {saturation:.1f}% of the time")
+    if op_held is not None and op_held > LIMITS["op_held_pct"]:
+        issues.append(f"OP held constant for {op_held:.1f}% of the time (manual mode or a "
+                      f"frozen output)")
     if manual is not None and manual > LIMITS["manual_pct"]:
         issues.append(f"loop in manual for {manual:.1f}% of the time")
     if mode_issue:
@@ -329,4 +366,5 @@ def quality_metrics(aligned: AlignedLoop, frames: Mapping[str, pl.DataFrame], *,
         frozen_pct=frozen_pct, longest_frozen_s=longest_frozen, compression_ratio=ratio,
         median_spacing_s=med, spacing_spread=spread, repeat_fraction=repeat,
         compressed=compressed, saturation_pct=saturation, manual_pct=manual,
-        pv_resolution=resolution, sample_time=aligned.sample_time, issues=tuple(issues))
+        pv_resolution=resolution, sample_time=aligned.sample_time, issues=tuple(issues),
+        op_held_pct=op_held)
