@@ -1,0 +1,370 @@
+"""Tests of valvediag.scan: per-loop analysis, ranking, planning, and whole scans of
+synthetic plants (accuracy against truth.csv, bad input, history across runs)."""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import datetime as dt
+import json
+import math
+import shutil
+
+import numpy as np
+import polars as pl
+import pytest
+from scipy import signal
+
+from valvediag.registry import LoopSpec
+from valvediag.scan import (ACTION_VERDICTS, LoopJob, LoopResult, ScanConfig, analyse_loop,
+                            load_loop_frames, plan_loops, rank_results, run_scan, severity)
+from valvediag.store import FAULT_VERDICTS, Store
+from valvediag.synthplant import synth_plant
+
+UTC = dt.timezone.utc
+T0 = dt.datetime(2026, 1, 1, tzinfo=UTC)
+P = 120.0  # oscillation period of the hand-made loops [s]
+VERDICT_ORDER = ("insufficient-data", "no-oscillation", "not-integrating", "linear-oscillation",
+                 "stiction", "backlash", "undecided")
+
+
+# ------------------------------------------------------------------ helpers
+
+def frame(seconds, values, status=None) -> pl.DataFrame:
+    """Samples at T0 + seconds; NaN/None values are bad states."""
+    vals = [None if v is None or (isinstance(v, float) and math.isnan(v)) else float(v)
+            for v in values]
+    if status is None:
+        status = [None if v is not None else "I/O Timeout" for v in vals]
+    return pl.DataFrame({"ts": [T0 + dt.timedelta(seconds=float(s)) for s in seconds],
+                         "value": pl.Series(vals, dtype=pl.Float64),
+                         "status": pl.Series(status, dtype=pl.String)})
+
+
+def sticky(t, rng):
+    """An integrating loop with a sticky valve: triangle PV, square-wave valve."""
+    tri = signal.sawtooth(2 * np.pi * t / P, 0.5)
+    pv = 50 + tri + rng.normal(0, 0.01, t.size)
+    op = 50 + 5 * signal.square(2 * np.pi * t / P + 0.3) + 2 * tri
+    return pv, op
+
+
+def job_for(spec, n, h=1.0, problems=()):
+    return LoopJob(spec, T0, T0 + dt.timedelta(seconds=n * h), tuple(problems))
+
+
+SPEC = LoopSpec("LIC1", "LIC1.PV", "LIC1.OP", process_type="integrating", span=100.0,
+                criticality=2.0, unit="%")
+
+
+def result(loop, verdict, sev, conf=0.9):
+    nan = math.nan
+    return LoopResult(loop=loop, unit="%", verdict=verdict, confidence=conf, severity=sev,
+                      rank=None, process_type="integrating", bi=nan, period_s=nan,
+                      amplitude=nan, amplitude_pct_span=nan, regularity=nan, reason="r",
+                      evidence={}, quality={}, episodes=(), window_start=T0, window_end=T0)
+
+
+# ------------------------------------------------------- one loop, by hand
+
+def test_sticky_loop_gives_stiction_with_evidence_and_severity():
+    rng = np.random.default_rng(1)
+    t = np.arange(7200.0)
+    pv, op = sticky(t, rng)
+    r = analyse_loop(job_for(SPEC, t.size), {"pv": frame(t, pv), "op": frame(t, op)})
+    assert r.verdict == "stiction" and r.confidence > 0.8
+    assert r.bi == pytest.approx(1.0, abs=0.2)
+    assert r.period_s == pytest.approx(P, rel=0.03)
+    assert r.amplitude == pytest.approx(1.0, rel=0.05)           # triangle of half range 1
+    assert r.amplitude_pct_span == pytest.approx(1.0, rel=0.05)  # span 100
+    assert len(r.episodes) == 1 and r.episodes[0].verdict == "stiction"
+    # severity by hand: f_amp = 1 - exp(-a/5), f_reg = r/(1+r), f_time = 1, f_crit = 2
+    f = r.evidence["severity_factors"]
+    assert f["f_amp"] == pytest.approx(1 - math.exp(-r.amplitude_pct_span / 5))
+    assert f["f_time"] == pytest.approx(1.0, abs=0.01) and f["f_crit"] == 2.0
+    assert r.severity == pytest.approx(f["f_amp"] * f["f_reg"] * f["f_time"] * 2.0, rel=1e-4)
+    assert r.process_type == "integrating" and r.evidence["process_type_source"] == "loops.csv"
+    json.dumps(r.to_json(), allow_nan=False)  # plain JSON, no NaN
+
+
+def test_episode_is_trimmed_to_the_oscillating_part_of_a_segment():
+    rng = np.random.default_rng(2)
+    t = np.arange(14400.0)
+    pv = 50 + rng.normal(0, 0.01, t.size)
+    op = 50 + rng.normal(0, 0.05, t.size)
+    late = t >= 7200                       # quiet for 2 h, then sticks for 2 h
+    spv, sop = sticky(t, rng)
+    pv[late], op[late] = spv[late], sop[late]
+    r = analyse_loop(job_for(SPEC, t.size), {"pv": frame(t, pv), "op": frame(t, op)})
+    assert r.verdict == "stiction"
+    (ep,) = r.episodes
+    block = 4 * P  # the activity screen works in blocks of 4 periods
+    assert abs((ep.start - T0).total_seconds() - 7200) <= block
+    assert (ep.end - T0).total_seconds() == pytest.approx(14400, abs=block)
+    assert r.evidence["time_share"] == pytest.approx(0.5, abs=block / 14400)
+
+
+def test_conflicting_episodes_lower_the_confidence():
+    rng = np.random.default_rng(3)
+    t = np.arange(14400.0)
+    spv, sop = sticky(t, rng)
+    sine = 50 + np.sin(2 * np.pi * t / P) + rng.normal(0, 0.01, t.size)
+    sop2 = 50 + 5 * np.sin(2 * np.pi * t / P + 1)
+    first = t < 9000
+    pv = np.where(first, spv, sine)
+    op = np.where(first, sop, sop2)
+    pv[9000] = np.nan                      # a bad state splits the two stretches
+    r = analyse_loop(job_for(SPEC, t.size), {"pv": frame(t, pv), "op": frame(t, op)})
+    verdicts = [e.verdict for e in r.episodes]
+    assert verdicts == ["stiction", "linear-oscillation"]
+    assert r.verdict == "stiction"         # 9000 s against 5400 s, equal confidence
+    share = r.evidence["agreement"]
+    assert share == pytest.approx(9000 / 14399, abs=0.01)
+    assert r.confidence == pytest.approx(r.episodes[0].confidence * share, abs=0.01)
+    assert "episodes disagree" in r.reason
+
+
+def test_quiet_loop_is_no_oscillation_but_too_little_data_is_insufficient():
+    rng = np.random.default_rng(4)
+    t = np.arange(7200.0)
+    pv = 50 + np.cumsum(rng.normal(0, 0.002, t.size)) + rng.normal(0, 0.01, t.size)
+    op = 50 + rng.normal(0, 0.2, t.size)
+    r = analyse_loop(job_for(SPEC, t.size), {"pv": frame(t, pv), "op": frame(t, op)})
+    assert r.verdict == "no-oscillation" and r.rank is None and r.severity == 0.0
+    # the same 2 h inside a 24 h window: under 10 % coverage
+    job = LoopJob(SPEC, T0, T0 + dt.timedelta(hours=24))
+    r = analyse_loop(job, {"pv": frame(t, pv), "op": frame(t, op)})
+    assert r.verdict == "insufficient-data"
+    assert "only 2 h of usable data in the 24 h window" in r.reason
+
+
+@pytest.mark.parametrize("spec, frames, problems, expect", [
+    (dataclasses.replace(SPEC, pv_tag=None, issues=("no PV tag in loops.csv",)), {}, (),
+     "no PV tag in loops.csv"),
+    (dataclasses.replace(SPEC, op_tag=None), {}, (), "no OP tag in loops.csv"),
+    (SPEC, {"pv": frame([], []), "op": frame([0, 1], [1.0, 2.0])},
+     ("PV tag LIC1.PV not found in the exports",), "PV tag LIC1.PV not found in the exports"),
+    (SPEC, {"pv": frame([0, 1], [1.0, 2.0]), "op": frame([], [])}, (),
+     "OP tag LIC1.OP has no samples from"),
+    (SPEC, {"pv": frame(range(50), [None] * 50), "op": frame(range(50), range(50))}, (),
+     "all 50 PV samples of LIC1.PV in the window are bad states (I/O Timeout)"),
+    (SPEC, {"pv": frame(range(40), range(40)), "op": frame(range(40), range(40))}, (),
+     "no stretch of usable PV and OP data lasting 10 min"),
+])
+def test_unusable_loops_get_insufficient_data_with_the_reason(spec, frames, problems, expect):
+    r = analyse_loop(job_for(spec, 100, problems=problems), frames)
+    assert r.verdict == "insufficient-data"
+    assert expect in r.reason
+    assert r.severity == 0.0 and r.episodes == ()
+    assert list(r.evidence["problems"]) == list(problems)
+
+
+def test_severity_hand_values_and_bounds():
+    s, f = severity(5.0, 1.0, 1.0, 1.0)
+    assert s == pytest.approx((1 - math.exp(-1)) * 0.5, rel=1e-6)
+    assert f == pytest.approx({"f_amp": 1 - math.exp(-1), "f_reg": 0.5, "f_time": 1.0,
+                               "f_crit": 1.0})
+    big, _ = severity(1e6, 1e9, 5.0, 1e3)
+    assert 9.9 < big <= 10.0
+    assert severity(math.nan, 2.0, 1.0, 1.0)[0] == 0.0
+    assert severity(2.0, 2.0, 0.0, 3.0)[0] == 0.0
+
+
+def test_rank_results_puts_every_action_loop_first_by_severity():
+    rs = [result("A", "no-oscillation", 0.0), result("B", "stiction", 0.2),
+          result("C", "not-integrating", 0.9), result("D", "linear-oscillation", 0.5),
+          result("E", "backlash", 0.2, conf=0.95), result("F", "undecided", 0.01),
+          result("G", "insufficient-data", 0.0)]
+    ranked = rank_results(rs)
+    assert [(r.loop, r.rank) for r in ranked] == [
+        ("D", 1), ("E", 2), ("B", 3), ("F", 4), ("C", None), ("A", None), ("G", None)]
+    assert all(r.rank is None for r in ranked if r.verdict not in ACTION_VERDICTS)
+
+
+def test_scan_config_checks_its_values():
+    with pytest.raises(ValueError, match="window_hours"):
+        ScanConfig(window_hours=0)
+    with pytest.raises(ValueError, match="method"):
+        ScanConfig(method="fancy")
+    with pytest.raises(ValueError, match="no time zone"):
+        ScanConfig(end=dt.datetime(2026, 1, 1))
+    with pytest.raises(ValueError, match="max_gap_s"):
+        ScanConfig(max_gap_s=-1.0)
+    c = ScanConfig(end=dt.datetime(2026, 1, 1, 1, tzinfo=dt.timezone(dt.timedelta(hours=1))))
+    assert c.end == T0 and c.end.tzinfo == UTC
+    assert json.loads(json.dumps(c.to_json()))["end"] == "2026-01-01T00:00:00+00:00"
+
+
+# ---------------------------------------------------- planning and reading
+
+def _store_with(tmp_path, tags):
+    store = Store(tmp_path / "s.duckdb")
+    rows = []
+    for tag, last_s in tags.items():
+        for s in range(0, last_s + 1, 10):
+            rows.append({"tag": tag, "ts": T0 + dt.timedelta(seconds=s), "value": float(s),
+                         "status": None, "source_file": "f.csv", "source_line": s})
+    store.insert_new_samples(pl.DataFrame(rows, schema={
+        "tag": pl.String, "ts": pl.Datetime("us", "UTC"), "value": pl.Float64,
+        "status": pl.String, "source_file": pl.String, "source_line": pl.Int64}))
+    return store
+
+
+def test_plan_loops_windows_end_after_each_loops_latest_sample(tmp_path):
+    store = _store_with(tmp_path, {"A.PV": 3600, "A.OP": 3600, "B.PV": 7200, "B.OP": 7000})
+    loops = [LoopSpec("A", "A.PV", "A.OP"), LoopSpec("B", "B.PV", "B.OP", sp_tag="B.SP"),
+             LoopSpec("C", None, "C.OP", issues=("no PV tag in loops.csv",))]
+    a, b, c = plan_loops(store, loops, ScanConfig(window_hours=1))
+    assert a.end == T0 + dt.timedelta(seconds=3601) and a.start == T0 + dt.timedelta(seconds=1)
+    assert b.end == T0 + dt.timedelta(seconds=7201)
+    assert b.problems == ("SP tag B.SP not found in the exports",)
+    assert c.problems == ("no PV tag in loops.csv", "OP tag C.OP not found in the exports")
+    assert c.end == b.end  # no data at all: the store's latest sample
+    fixed = plan_loops(store, loops, ScanConfig(window_hours=2, end=T0 + dt.timedelta(hours=3)))
+    assert {j.end for j in fixed} == {T0 + dt.timedelta(hours=3)}
+    # the window holds the latest sample and not the first one
+    frames = load_loop_frames(store, a)
+    assert frames["pv"]["ts"].max() == T0 + dt.timedelta(seconds=3600)
+    assert frames["pv"].height == 360
+    store.close()
+
+
+def test_load_loop_frames_from_a_path_with_or_without_an_open_writer(tmp_path):
+    store = _store_with(tmp_path, {"A.PV": 600, "A.OP": 600})
+    (job,) = plan_loops(store, [LoopSpec("A", "A.PV", "A.OP")], ScanConfig(window_hours=1))
+    path = tmp_path / "s.duckdb"
+    shared = load_loop_frames(path, job)           # this process holds it read-write
+    store.close()
+    alone = load_loop_frames(path, job)            # opened read-only
+    assert shared["pv"].equals(alone["pv"]) and alone["op"].height == 61
+
+
+# -------------------------------------------------------- synthetic plants
+
+def _confusion(results, truth):
+    tv = dict(zip(truth["loop"], truth["truth_verdict"]))
+    cm = collections.Counter((tv[r.loop], r.verdict) for r in results)
+    lines = ["truth \\ scan".ljust(20) + "".join(v[:9].rjust(10) for v in VERDICT_ORDER)]
+    for a in VERDICT_ORDER[:-1]:
+        lines.append(a.ljust(20) + "".join(str(cm.get((a, b), 0)).rjust(10)
+                                           for b in VERDICT_ORDER))
+    ok = sum(r.verdict == tv[r.loop] for r in results)
+    wrong = [f"{r.loop}: truth {tv[r.loop]}, scan {r.verdict} ({r.reason})"
+             for r in results if r.verdict != tv[r.loop]]
+    return ok / len(results), "\n".join(lines + wrong)
+
+
+@pytest.fixture(scope="module", params=[(40, 0.5, 5.0, 11), (20, 0.25, 1.0, 12)],
+                ids=["40loops-12h-5s", "20loops-6h-1s"])
+def scanned_plant(request, tmp_path_factory):
+    n, days, st, seed = request.param
+    base = tmp_path_factory.mktemp(f"plant{seed}")
+    plant = synth_plant(n, days, st, base / "plant", seed=seed)
+    summary = run_scan(plant.out_dir / "exports", plant.loops_csv, base / "db.duckdb",
+                       base / "out", config=ScanConfig(window_hours=days * 24))
+    return plant, summary
+
+
+def test_scan_matches_the_truth_of_a_synthetic_plant(scanned_plant):
+    plant, summary = scanned_plant
+    assert len(summary.results) == plant.truth.height
+    accuracy, table = _confusion(summary.results, plant.truth)
+    assert accuracy >= 0.9, f"accuracy {accuracy:.1%}\n{table}"
+
+
+def test_every_valve_fault_ranks_above_every_healthy_loop(scanned_plant):
+    plant, summary = scanned_plant
+    tv = dict(zip(plant.truth["loop"], plant.truth["truth_verdict"]))
+    rank = {r.loop: (r.rank if r.rank is not None else math.inf) for r in summary.results}
+    faults = [lp for lp, v in tv.items() if v in ("stiction", "backlash")]
+    healthy = [lp for lp, v in tv.items() if v == "no-oscillation"]
+    assert faults and healthy
+    worst_fault = max(rank[lp] for lp in faults)
+    best_healthy = min(rank[lp] for lp in healthy)
+    assert worst_fault < best_healthy, (worst_fault, best_healthy)
+    ranks = [r.rank for r in summary.results if r.rank is not None]
+    assert ranks == list(range(1, len(ranks) + 1))
+    sev = [r.severity for r in summary.results if r.rank is not None]
+    assert sev == sorted(sev, reverse=True)
+
+
+def test_scan_writes_outputs_and_history(scanned_plant):
+    plant, summary = scanned_plant
+    doc = json.loads(summary.outputs["verdicts"].read_text())
+    assert doc["run_id"] == summary.run_id
+    assert [e["loop"] for e in doc["loops"]] == [r.loop for r in summary.results]
+    with Store(summary.outputs["verdicts"].parent.parent / "db.duckdb", read_only=True) as s:
+        assert s.run(summary.run_id)["status"] == "complete"
+        v = s.verdicts(summary.run_id)
+        assert v.height == plant.truth.height
+        eps = s.episodes(summary.run_id)
+    assert eps.height == sum(len(r.episodes) for r in summary.results) > 0
+
+
+# ------------------------------------------------------------ bad input
+
+@pytest.fixture(scope="module")
+def small_plant(tmp_path_factory):
+    base = tmp_path_factory.mktemp("small")
+    return synth_plant(10, 0.1, 5.0, base / "plant", seed=21), base
+
+
+def test_bad_input_and_history_through_run_scan(small_plant):
+    plant, base = small_plant
+    exports = base / "exports"
+    shutil.copytree(plant.out_dir / "exports", exports)
+    bad = exports / "zz_unknown_columns.csv"
+    bad.write_text("foo,bar,baz\n1,2,3\n")
+    loops = pl.read_csv(plant.loops_csv, infer_schema_length=0)
+    extra = pl.DataFrame([
+        {"loop": "LIC900", "pv_tag": "LIC900.PV", "op_tag": "LIC900.OP",
+         "process_type": "integrating", "span": "100", "criticality": "1",
+         "description": "tags absent from the exports"},
+        {"loop": "LIC901", "pv_tag": None, "op_tag": "LIC901.OP", "process_type": "unknown",
+         "criticality": "1", "description": "row without a PV tag"}],
+        schema={c: pl.String for c in loops.columns})
+    tv = dict(zip(plant.truth["loop"], plant.truth["truth_verdict"]))
+    held_out = sorted(lp for lp, v in tv.items() if v in ("stiction", "backlash"))
+    first = pl.concat([loops.filter(~pl.col("loop").is_in(held_out)), extra])
+    first.write_csv(base / "loops1.csv")
+    pl.concat([loops, extra]).write_csv(base / "loops2.csv")
+    db, out = base / "db.duckdb", base / "out"
+
+    s1 = run_scan(exports, base / "loops1.csv", db, out, config=ScanConfig(window_hours=2.4))
+    # one line naming the bad file; the other files are in
+    assert len(s1.errors) == 1 and str(bad) in s1.errors[0] and "\n" not in s1.errors[0]
+    assert sum(f.rows_inserted for f in s1.ingest.per_file) == s1.ingest.rows_inserted > 0
+    by = {r.loop: r for r in s1.results}
+    assert by["LIC900"].verdict == "insufficient-data"
+    assert "PV tag LIC900.PV not found in the exports" in by["LIC900"].reason
+    assert by["LIC901"].verdict == "insufficient-data"
+    assert by["LIC901"].reason == "no PV tag in loops.csv"
+    assert any("LIC901" in p and "no PV tag" in p for p in s1.registry_problems)
+    assert len(s1.results) == first.height
+    with Store(db, read_only=True) as s:
+        samples = s.counts()["samples"]
+
+    # duplicated rows (in the file and against the store) add nothing
+    export = sorted(plant.exports)[0]
+    lines = export.read_text().splitlines()
+    (exports / "zz_duplicates.csv").write_text(
+        "\n".join([lines[0]] + lines[1:300] + lines[1:300]) + "\n")
+    s2 = run_scan(exports, base / "loops2.csv", db, out, config=ScanConfig(window_hours=2.4))
+    assert s2.ingest.rows_inserted == 0
+    dup = [f for f in s2.ingest.per_file if f.path.endswith("zz_duplicates.csv")][0]
+    assert dup.rows_skipped_duplicate == 598 and dup.rows_quarantined == 0
+    assert all(f.unchanged for f in s2.ingest.per_file
+               if not f.path.endswith(("zz_duplicates.csv", "zz_unknown_columns.csv")))
+    with Store(db, read_only=True) as s:
+        assert s.counts()["samples"] == samples
+        assert s.duplicate_keys() == 0
+        runs = s.runs()
+        kept = next(lp for lp in tv if lp not in held_out)
+        history = s.verdict_history(kept)
+    assert runs["status"].to_list() == ["complete", "complete"]
+    assert runs["run_id"].to_list() == [s1.run_id, s2.run_id]
+    assert history.height == 2 and history["run_id"].to_list() == [s1.run_id, s2.run_id]
+    # the held-out fault loops are new in run 2; nothing else changed
+    faulty = {r.loop for r in s2.results if r.verdict in FAULT_VERDICTS}
+    assert set(s2.new_faults) == faulty & set(held_out) != set()
+    report = s2.outputs["report"].read_text()
+    assert "LIC900.PV not found in the exports" in report and str(bad) in report
