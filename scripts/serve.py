@@ -41,6 +41,10 @@ def _pid(name: str) -> int | None:
     try:
         pid = int(f.read_text())
         os.killpg(pid, 0)
+        # the pid may have been reused since: only a prefect process is ours
+        cmdline = Path(f"/proc/{pid}/cmdline")
+        if cmdline.parent.parent.is_dir() and b"prefect" not in cmdline.read_bytes():
+            return None
     except (OSError, ValueError):
         return None
     return pid

@@ -190,6 +190,24 @@ def test_scan_summary_names_the_outputs(prefect_api, plant, tmp_path, capsys, mo
         assert str((tmp_path / "out" / name).resolve()) in out
 
 
+def test_scan_failed_flow_is_one_line_error(prefect_api, plant, tmp_path, capsys, monkeypatch):
+    import pipelines.nightly
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("disk full\nwhile writing report.html")
+
+    monkeypatch.setattr(pipelines.nightly, "write_outputs", broken)
+    rc, out, err = _cli(["--exports", plant / "exports", "--loops", plant / "loops.csv",
+                         "--db", tmp_path / "p.duckdb", "--out", tmp_path / "out"],
+                        capsys, monkeypatch)
+    assert rc == 2
+    assert out == ""
+    assert err.strip().splitlines()[-1] == ("valvediag scan: error: the scan failed: "
+                                            "disk full while writing report.html")
+    with Store(tmp_path / "p.duckdb", read_only=True) as store:
+        assert store.runs()["status"].to_list() == ["failed"]
+
+
 @pytest.fixture
 def bad(plant, tmp_path):
     """Valid arguments, to be spoiled one at a time."""

@@ -69,7 +69,8 @@ def register(sub):
     p.add_argument("--json", action="store_true",
                    help="print verdicts.json (every loop, ranked) to stdout instead of a summary")
     p.add_argument("-v", "--verbose", action="store_true",
-                   help="show Prefect's log lines (task runs) on stderr")
+                   help="show Prefect's log lines (task runs, warnings) on stderr; by default "
+                        "only errors and the progress display")
     p.set_defaults(func=run)
 
 
@@ -85,11 +86,9 @@ def _check_inputs(args):
         read_loops_csv(args.loops)
     except RegistryError as exc:
         raise CommandError(str(exc)) from None
-    files, misses = expand_paths(args.exports)
+    files, _ = expand_paths(args.exports)    # patterns matching nothing: warned after the run
     if not files:
         raise CommandError(f"--exports {' '.join(args.exports)}: no file matches")
-    for m in misses:
-        print(f"valvediag scan: warning: {m}", file=sys.stderr)
     if args.timezone:
         try:
             zoneinfo.ZoneInfo(args.timezone)
@@ -155,8 +154,12 @@ def _one_line(exc: BaseException) -> str:
 
 def run(args) -> int:
     exports, config = _check_inputs(args)
-    if not args.verbose:   # Prefect's console lines; the API still records them
-        os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "WARNING")
+    # no internet on plant machines: Prefect must not phone home (DESIGN.md)
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.setdefault("DO_NOT_TRACK", "1")
+    if not args.verbose:   # Prefect's console lines (the API still records them); the
+        # warnings of the run are printed below, once
+        os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "ERROR")
     from pipelines.nightly import nightly_scan, progress_to
 
     with progress_to(_StageProgress()):
