@@ -118,13 +118,14 @@ def ingest(db: str, exports: list[str], loops: list[LoopSpec], timezone: str | N
         No export file matches at all.
     """
     logger = get_run_logger()
-    _report("ingest", 0, len(expand_paths(exports)[0]))
+    files, _ = expand_paths(exports)    # ingest_exports reports the patterns matching nothing
+    if not files:
+        raise FileNotFoundError(f"no export file matches {', '.join(exports)}")
+    _report("ingest", 0, len(files))
     with Store(db) as store:
         report = ingest_exports(store, exports, timezone=timezone,
                                 progress=lambda done, total, _path: _report("ingest", done, total))
         store.replace_loops(loops)
-    if report.files == 0:
-        raise FileNotFoundError(f"no export file matches {', '.join(exports)}")
     logger.info("ingested %d files: %d rows new, %d duplicates skipped, %d quarantined",
                 report.files, report.rows_inserted, report.rows_skipped_duplicate,
                 report.rows_quarantined)

@@ -154,6 +154,20 @@ def test_failed_step_marks_the_run_failed(prefect_api, plant, tmp_path):
     assert runs["finished_at"][0] is not None
 
 
+def test_no_export_fails_before_touching_the_store(prefect_api, plant, tmp_path):
+    from pipelines.nightly import nightly_scan
+
+    state = nightly_scan(exports=str(tmp_path / "nothing" / "*.csv"),
+                         loops=str(plant / "loops.csv"), db=str(tmp_path / "p.duckdb"),
+                         out=str(tmp_path / "out"), return_state=True)
+    assert state.is_failed()
+    exc = state.result(raise_on_failure=False)
+    assert isinstance(exc, FileNotFoundError)
+    assert "no export file matches" in str(exc) and "nothing" in str(exc)
+    assert not (tmp_path / "p.duckdb").exists()
+    assert not (tmp_path / "out").exists()
+
+
 # ------------------------------------------------------------------ valvediag scan
 def _cli(args, capsys, monkeypatch):
     monkeypatch.delenv(CONSOLE_LEVEL, raising=False)   # the command sets it; undo afterwards
