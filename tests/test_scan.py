@@ -368,3 +368,19 @@ def test_bad_input_and_history_through_run_scan(small_plant):
     assert set(s2.new_faults) == faulty & set(held_out) != set()
     report = s2.outputs["report"].read_text()
     assert "LIC900.PV not found in the exports" in report and str(bad) in report
+
+
+def test_grid_is_in_phase_with_the_pv_samples():
+    """Samples every 5 s from T0 and a window starting at T0 - 3 s: the grid must hit
+    the samples (T0 + 5k), not interpolate between them (which rounds the peaks)."""
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 14400.0, 5.0)
+    pv, op = sticky(t, rng)
+    job = LoopJob(SPEC, T0 - dt.timedelta(seconds=3), T0 + dt.timedelta(seconds=14400))
+    r = analyse_loop(job, {"pv": frame(t, pv), "op": frame(t, op)})
+    assert r.verdict == "stiction" and r.evidence["sample_time_s"] == 5.0
+    ep = r.episodes[0]
+    assert (ep.start - T0).total_seconds() % 5.0 == 0.0
+    # samples fall on the apices (t = 60 + 120 k); a grid 2 s off would cut each apex
+    # by 2 s of a 1/30 per s ramp, to about 0.93
+    assert r.amplitude == pytest.approx(1.0, abs=0.01)

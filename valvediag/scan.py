@@ -19,7 +19,9 @@ Per loop, over the scan window (default: the latest 24 h of the loop's data):
 
 1. **Alignment.** PV, OP and SP go on a uniform grid
    (:func:`valvediag.align.align_loop`): the grid step is the PV's median
-   sample spacing; compressed analog values are interpolated linearly; a
+   sample spacing and the grid is in phase with the PV's samples (so they are
+   taken as they are, not interpolated, which would round the peaks);
+   compressed analog values are interpolated linearly; a
    bad-state row or an interval much longer than the tag's own usual spacing
    (:func:`valvediag.align.tag_max_gap`) splits the data into segments. The
    quality screen (:func:`valvediag.quality.quality_metrics`) runs on the same
@@ -80,7 +82,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .align import AlignedLoop, align_loop
+from .align import AlignedLoop, align_loop, median_spacing, to_epoch_us
 from .classify import LoopDiagnosis, classify_loop
 from .quality import DataQuality, quality_metrics
 from .registry import LoopSpec
@@ -681,6 +683,29 @@ def _check_frames(job: LoopJob, frames: Mapping[str, pl.DataFrame]) -> str | Non
     return None
 
 
+def _grid_step(pv: pl.DataFrame) -> float | None:
+    """The PV's median sample spacing [s], as align_loop's default, or None."""
+    h = median_spacing(to_epoch_us(pv["ts"].drop_nulls()))
+    return h if math.isfinite(h) and h > 0 else None
+
+
+def _grid_start(pv: pl.DataFrame, start: dt.datetime) -> dt.datetime:
+    """The first instant at or after ``start`` in phase with the PV's first sample.
+
+    A grid in phase with the samples takes them as they are; a grid offset by
+    a fraction of the spacing would interpolate every point, which low-passes
+    the PV and rounds its peaks (biasing the Backlash Index towards backlash).
+    """
+    h = _grid_step(pv)
+    if h is None:
+        return start
+    step = max(int(round(h * 1e6)), 1)
+    first = int(to_epoch_us(pv["ts"].drop_nulls()).min())
+    s_us = (start - dt.datetime(1970, 1, 1, tzinfo=_UTC)) // dt.timedelta(microseconds=1)
+    t0 = first - ((first - s_us) // step) * step
+    return dt.datetime(1970, 1, 1, tzinfo=_UTC) + dt.timedelta(microseconds=int(t0))
+
+
 def _span(spec: LoopSpec, aligned: AlignedLoop) -> tuple[float, str]:
     if spec.span is not None and math.isfinite(spec.span) and spec.span > 0:
         return float(spec.span), "loops.csv"
@@ -738,7 +763,9 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     if why is not None:
         return _insufficient(job, why, frames=frames)
     roles = {r: f for r, f in frames.items() if r in ("pv", "op", "sp", "mv", "mode")}
-    aligned = align_loop(roles, start=job.start, end=job.end, max_gap=config.max_gap_s)
+    aligned = align_loop(roles, sample_time=_grid_step(roles["pv"]),
+                         start=_grid_start(roles["pv"], job.start), end=job.end,
+                         max_gap=config.max_gap_s)
     q = quality_metrics(aligned, roles, span=spec.span)
     qd = _clean(q.as_dict())
     window_s = (job.end - job.start).total_seconds()
