@@ -1,0 +1,299 @@
+"""
+Measured loop data prepared for the workbench: segments, training and
+held-out blocks, burn-in, OP reversals.
+
+The PV prediction is a free simulation driven by the measured OP and
+re-initialised at the start of every *segment* of ``horizon`` samples.
+Segments are grouped into consecutive time blocks that alternate between
+training (fit) and held-out (score). The record is never resampled.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .kernels import turning_points
+
+__all__ = ["LoopData", "WorkbenchDataError", "prepare_loop"]
+
+#: Fewest segments a record must give (training plus held-out).
+MIN_SEGMENTS = 6
+#: Fewest samples a record must have.
+MIN_SAMPLES = 200
+
+
+class WorkbenchDataError(ValueError):
+    """Data the workbench cannot model; the message is one line."""
+
+
+def _nan_fill(x):
+    """Hold the last finite value over NaNs (first finite value at the start)."""
+    x = np.asarray(x, dtype=float).copy()
+    ok = np.isfinite(x)
+    if ok.all():
+        return x
+    idx = np.where(ok, np.arange(x.size), 0)
+    np.maximum.accumulate(idx, out=idx)
+    first = int(np.argmax(ok))
+    out = x[idx]
+    out[:first] = x[first]
+    return out
+
+
+@dataclass(frozen=True)
+class LoopData:
+    """One loop's record, split into re-initialised segments.
+
+    Build it with :func:`prepare_loop`.
+
+    Attributes
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Time since the first sample [s].
+    pv : numpy.ndarray
+        Measured PV [PV unit]; NaN where missing.
+    op : numpy.ndarray
+        Controller output with missing values held [OP unit, e.g. %].
+    sp : numpy.ndarray or None
+        Set point [PV unit].
+    sample_time : float
+        [s]
+    horizon : int
+        Segment length [samples].
+    period : float
+        Dominant period of the OP [s]; NaN when none was found.
+    burn_in : int
+        First sample scored: the valve state is known from here on [sample].
+    seg_start, seg_end : numpy.ndarray of int
+        Segment bounds ``[start, end)`` [sample].
+    seg_set : numpy.ndarray of int
+        0 training, 1 held-out, -1 unused (missing data inside).
+    band_max : float
+        Largest valve band searched (dead band, stick band) [OP unit].
+    op_delta : float
+        Hysteresis used to find OP reversals [OP unit].
+    reversals, reversal_sign : numpy.ndarray of int
+        Index of each OP reversal (an extreme of the OP) and its sign
+        (+1 maximum, -1 minimum).
+    held_fraction : float
+        Fraction of samples where the OP equals the previous sample: held or
+        compressed data (false rests for the Kano model).
+    name : str
+        Label of the record (file name) for reports.
+    """
+
+    t: np.ndarray
+    pv: np.ndarray
+    op: np.ndarray
+    sp: np.ndarray | None
+    sample_time: float
+    horizon: int
+    period: float
+    burn_in: int
+    seg_start: np.ndarray
+    seg_end: np.ndarray
+    seg_set: np.ndarray
+    band_max: float
+    op_delta: float
+    reversals: np.ndarray
+    reversal_sign: np.ndarray
+    held_fraction: float
+    name: str = ""
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return int(self.t.size)
+
+    @property
+    def sample_set(self) -> np.ndarray:
+        """Per sample: 0 training, 1 held-out, -1 not scored."""
+        key = "sample_set"
+        if key not in self._cache:
+            s = np.full(self.n, -1, np.int64)
+            for a, b, c in zip(self.seg_start, self.seg_end, self.seg_set):
+                s[a:b] = c
+            self._cache[key] = s
+        return self._cache[key]
+
+    @property
+    def seg_id(self) -> np.ndarray:
+        """Per sample: index of its segment, -1 before the burn-in."""
+        key = "seg_id"
+        if key not in self._cache:
+            s = np.full(self.n, -1, np.int64)
+            for j, (a, b) in enumerate(zip(self.seg_start, self.seg_end)):
+                s[a:b] = j
+            self._cache[key] = s
+        return self._cache[key]
+
+    def plot(self, ax=None):
+        """Plot PV and OP with the training (white) and held-out (grey) blocks.
+
+        Parameters
+        ----------
+        ax : matplotlib.axes.Axes, optional
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(9, 3))
+        _shade_heldout(ax, self)
+        ax.plot(self.t, self.pv, color="C0", lw=0.8, label="PV")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("PV")
+        ax2 = ax.twinx()
+        ax2.plot(self.t, self.op, color="C1", lw=0.7, label="OP")
+        ax2.set_ylabel("OP")
+        return ax
+
+
+def _shade_heldout(ax, data: LoopData):
+    """Grey spans over the held-out blocks."""
+    ss = data.sample_set
+    held = ss == 1
+    if not held.any():
+        return
+    edges = np.flatnonzero(np.diff(np.r_[0, held.astype(np.int8), 0]))
+    for a, b in zip(edges[::2], edges[1::2]):
+        ax.axvspan(data.t[a], data.t[b - 1], color="0.9", lw=0, zorder=0)
+
+
+def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 9,
+                 band_max=None, name: str = "") -> LoopData:
+    """Prepare a loop record for the workbench.
+
+    Parameters
+    ----------
+    pv : array_like, shape (n,)
+        Process variable, uniformly sampled; NaN marks missing samples
+        [PV unit].
+    op : array_like, shape (n,)
+        Controller output, same sampling [OP unit, e.g. %]. Not clipped.
+    sample_time : float
+        [s]
+    sp : array_like, shape (n,), optional
+        Set point [PV unit]; used to label set-point changes.
+    horizon : int or 'auto'
+        Segment length: the prediction is re-initialised every ``horizon``
+        samples [samples]. ``'auto'``: a quarter of the OP period, at least
+        30 and at most 600 samples (and at most 1/12 of the record).
+    blocks : int
+        Number of alternating training / held-out time blocks (odd: the first
+        and last blocks train, so the held-out blocks are interior).
+    band_max : float, optional
+        Largest valve band searched [OP unit]; default 1.5 times the median
+        OP swing between reversals (at most 1.1 times the OP's 1-99 % range).
+    name : str
+        Label of the record for reports.
+
+    Returns
+    -------
+    LoopData
+
+    Raises
+    ------
+    WorkbenchDataError
+        Arrays of different lengths, a record too short, an OP that never
+        moves or never reverses (no oscillation to explain), a PV that is
+        all missing.
+
+    Notes
+    -----
+    Missing OP samples are held (so the valve chain can run) and every
+    segment that contains a missing PV or OP sample is left out of fit and
+    score. The first samples, until the OP has reversed and then travelled
+    ``band_max``, are not scored: there the valve state depends on its unknown
+    initial position (METHOD.md pitfalls). The data are never resampled.
+    """
+    h = float(sample_time)
+    if not np.isfinite(h) or h <= 0:
+        raise WorkbenchDataError(f"sample time must be a positive number of seconds, got {sample_time!r}")
+    pv = np.asarray(pv, dtype=float).ravel()
+    op_raw = np.asarray(op, dtype=float).ravel()
+    if pv.size != op_raw.size:
+        raise WorkbenchDataError(f"pv has {pv.size} samples but op has {op_raw.size}")
+    n = pv.size
+    if sp is not None:
+        sp = np.asarray(sp, dtype=float).ravel()
+        if sp.size != n:
+            raise WorkbenchDataError(f"pv has {n} samples but sp has {sp.size}")
+    if n < MIN_SAMPLES:
+        raise WorkbenchDataError(f"record too short: {n} samples (need at least {MIN_SAMPLES})")
+    okp, oko = np.isfinite(pv), np.isfinite(op_raw)
+    if okp.sum() < MIN_SAMPLES or oko.sum() < MIN_SAMPLES:
+        raise WorkbenchDataError(f"too few valid samples (pv {int(okp.sum())}, op {int(oko.sum())}; "
+                                 f"need {MIN_SAMPLES})")
+    op = _nan_fill(op_raw)
+    lo1, hi99 = np.percentile(op[oko], [1, 99])
+    rng = float(hi99 - lo1)
+    if not rng > 0:
+        raise WorkbenchDataError("the OP never moves: nothing to explain the PV with")
+    dop = np.diff(op[oko])
+    # OP noise: robust scale of the second difference
+    d2 = np.diff(dop)
+    noise = 1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0) if d2.size else 0.0
+    delta = max(0.05 * rng, 4.0 * noise)
+    idx, sgn, conf = turning_points(op, delta)
+    # the first extreme only fixes the direction: the start of the record
+    rev, rsg = idx[1:], sgn[1:]
+    if rev.size < 2:
+        raise WorkbenchDataError(f"the OP does not oscillate ({rev.size} reversal(s) larger than "
+                                 f"{delta:.3g}); the workbench needs a moving, reversing OP")
+    held = float(np.mean(dop == 0.0)) if dop.size else 0.0
+    # period: twice the median spacing of the reversals (robust to start-up
+    # transients and irregular cycles, unlike the ACF)
+    period = float(2.0 * np.median(np.diff(idx)) * h) if idx.size >= 3 else float("nan")
+    swing = np.abs(np.diff(op[idx]))
+    if band_max is None:
+        # a valve band larger than the OP swings would never let the valve move
+        band_max = min(1.1 * rng, 1.5 * float(np.median(swing)))
+    band_max = float(band_max)
+    # burn-in: OP has reversed and moved band_max since (valve state known)
+    # (the first extreme only fixes the direction; the second is a reversal),
+    # plus the longest dead time searched, so the delay line is filled
+    _, _, bconf = turning_points(op, max(band_max, delta))
+    burn = int(bconf[1]) if bconf.size >= 2 else int(conf[1])
+    P = period if np.isfinite(period) else 0.1 * n * h
+    burn += int(max(5, min(round(0.3 * P / h), 300)))
+    if horizon == "auto":
+        H = int(round(0.25 * period / h)) if np.isfinite(period) else 30
+        H = max(30, min(H, 600, (n - burn) // 12))
+    else:
+        H = int(horizon)
+    if H < 2:
+        raise WorkbenchDataError(f"horizon must be at least 2 samples, got {horizon!r}")
+    nseg = (n - burn) // H
+    if nseg < MIN_SEGMENTS:
+        raise WorkbenchDataError(f"record too short: {n - burn} usable samples give {nseg} segments of "
+                                 f"{H} samples (need {MIN_SEGMENTS})")
+    starts = burn + H * np.arange(nseg)
+    ends = starts + H
+    ends[-1] = n           # the last segment takes the remainder
+    blocks = int(blocks)
+    if blocks < 3:
+        raise WorkbenchDataError("blocks must be at least 3")
+    if blocks % 2 == 0:
+        blocks += 1
+    while blocks > 3 and nseg < 2 * blocks:
+        blocks -= 2
+    block_of = np.minimum((np.arange(nseg) * blocks) // nseg, blocks - 1)
+    sets = (block_of % 2).astype(np.int64)
+    # segments with missing data are not used
+    bad = ~(okp & oko)
+    cbad = np.r_[0, np.cumsum(bad)]
+    sets[(cbad[ends] - cbad[starts]) > 0] = -1
+    if (sets == 0).sum() < 2 or (sets == 1).sum() < 1:
+        raise WorkbenchDataError("too few complete segments for training and held-out scoring "
+                                 "(missing data)")
+    t = np.arange(n) * h
+    return LoopData(t=t, pv=pv, op=op, sp=sp, sample_time=h, horizon=H, period=period,
+                    burn_in=burn, seg_start=starts.astype(np.int64), seg_end=ends.astype(np.int64),
+                    seg_set=sets, band_max=band_max, op_delta=float(delta), reversals=rev,
+                    reversal_sign=rsg, held_fraction=held, name=str(name))

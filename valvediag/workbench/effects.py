@@ -1,0 +1,161 @@
+"""
+The named physical effects of the loop model, with their parameters.
+
+A loop model is the chain::
+
+    OP -> valve (deadband | stiction, saturation) -> dead time -> lag
+       -> plant input minus load (bias, drift) -> plant (gain) -> PV
+
+Each effect is named by a string and can be added to or removed from the
+chain (as pvlib's ``ModelChain`` swaps named models). The plant gain is
+always there: an integrator ``g = K / tau`` [PV unit / (OP unit s)] or a
+first-order plant (gain ``K`` [PV unit / OP unit], time constant ``tau`` [s]).
+
+Parameters are either *searched* (grid search, then local refinement; they
+count in the BIC like every other parameter) or *linear* (solved exactly by
+least squares for every searched candidate).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["Param", "Effect", "EFFECTS", "EFFECT_NAMES", "PLANT_PARAMS", "check_effects"]
+
+
+@dataclass(frozen=True)
+class Param:
+    """One model parameter.
+
+    Attributes
+    ----------
+    name : str
+        Key in the fitted ``params`` dict.
+    unit : str
+        Unit, e.g. ``'OP unit'`` (the unit of the controller output, usually
+        %), ``'s'``.
+    bounds : str
+        The range searched, in words (it depends on the data).
+    kind : {'searched', 'linear'}
+        Searched on a grid and refined, or solved by least squares.
+    description : str
+    """
+
+    name: str
+    unit: str
+    bounds: str
+    kind: str
+    description: str
+
+
+@dataclass(frozen=True)
+class Effect:
+    """A named, swappable physical effect of the loop model.
+
+    Attributes
+    ----------
+    name : str
+    stage : str
+        Where it acts: ``'valve'``, ``'delay'``, ``'lag'``, ``'load'``.
+    params : tuple of Param
+    description : str
+    signature : str
+        What its absence leaves in the residual (METHOD.md's table).
+    """
+
+    name: str
+    stage: str
+    params: tuple[Param, ...]
+    description: str
+    signature: str
+
+
+EFFECTS: dict[str, Effect] = {e.name: e for e in (
+    Effect("deadband", "valve",
+           (Param("DB", "OP unit", "0 to band_max (60 % of the OP's 1-99 % range)", "searched",
+                  "dead band (backlash) width: after a reversal the valve rests until the OP has "
+                  "crossed DB, then follows it DB/2 behind"),),
+           "Backlash of total width DB (Hägglund 2007); no jump.",
+           "a pulse in the residual after each OP reversal"),
+    Effect("stiction", "valve",
+           (Param("S", "OP unit", "0 to band_max", "searched",
+                  "dead band plus stick band (Kano et al. 2004)"),
+            Param("J", "OP unit", "0 to S", "searched", "slip jump at breakaway")),
+           "Kano (S, J) stick-slip valve; with held or compressed OP samples the He et al. "
+           "(2007) form of the same S, J is used so that held samples are not false rests. "
+           "Replaces 'deadband' (a Kano valve with J = 0 is a dead band of width S).",
+           "steps in the residual just after each breakaway, alternating in sign with the "
+           "direction of travel"),
+    Effect("saturation", "valve",
+           (Param("sat_low", "OP unit", "-inf or the OP's 0.5-15 % quantiles", "searched",
+                  "valve position lower stop"),
+            Param("sat_high", "OP unit", "the OP's 85-99.5 % quantiles or +inf", "searched",
+                  "valve position upper stop")),
+           "The valve stroke ends before the OP range does: the position is held at its stops.",
+           "error only while the OP is near a limit"),
+    Effect("dead_time", "delay",
+           (Param("dead_time", "s", "0 to 30 % of the OP period, whole samples", "searched",
+                  "transport delay between valve and PV"),),
+           "Pure delay of the valve position by whole samples.",
+           "residual-OP cross-correlation peaking at the dead time"),
+    Effect("lag", "lag",
+           (Param("lag", "s", "sample time/2 to half the OP period", "searched",
+                  "time constant of a first-order lag between valve and plant"),),
+           "First-order lag (actuator, mixing, sensor) in series with the plant.",
+           "residual correlated with the OP rate at short lags (the model leads the PV)"),
+    Effect("bias", "load",
+           (Param("bias", "PV unit/s (integrating) or PV unit (self-regulating)", "unbounded",
+                  "linear", "constant rate error of the integrator (leak, offset of the load "
+                  "or of the valve), or PV offset of a self-regulating plant"),),
+           "Constant unmeasured load. On an integrator it is confounded with the Kano "
+           "(S-J)/2 offset, so it is fitted jointly with the valve.",
+           "a constant rate error: the residual ramps within every segment"),
+    Effect("drift", "load",
+           (Param("drift", "PV unit/s per s (integrating)", "unbounded", "linear",
+                  "slope of the load ramp (rate error growing with time)"),
+            Param("drift_knots", "-", "fixed (default 3)", "linear",
+                  "interior knots of the piecewise-linear load; one slope change each")),
+           "Slowly varying unmeasured load: a ramp plus a piecewise-linear random walk with a "
+           "few knots (no constant term: that is 'bias').",
+           "a ramp or slow wander in the rate error"),
+)}
+
+#: Names of the effects, in the order the chain applies them.
+EFFECT_NAMES = tuple(EFFECTS)
+
+#: The plant's own parameters, always present.
+PLANT_PARAMS = {
+    "integrating": (Param("gain", "PV unit/(OP unit s)", "unbounded", "linear",
+                          "integrator gain g = K/tau"),),
+    "self-regulating": (Param("gain", "PV unit/OP unit", "unbounded", "linear",
+                              "steady-state gain K"),
+                        Param("tau", "s", "sample time to 5 OP periods", "searched",
+                              "plant time constant")),
+}
+
+
+def check_effects(effects) -> tuple[str, ...]:
+    """Validate and normalise a list of effect names.
+
+    Parameters
+    ----------
+    effects : str or iterable of str
+        Effect names, or a comma-separated string (``'deadband,dead_time'``).
+
+    Returns
+    -------
+    tuple of str
+        Unique names in chain order.
+
+    Raises
+    ------
+    ValueError
+        An unknown name.
+    """
+    if isinstance(effects, str):
+        effects = [e for e in (s.strip() for s in effects.split(",")) if e]
+    names = list(effects or ())
+    unknown = [e for e in names if e not in EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown effect(s) {', '.join(map(repr, unknown))}; choose from "
+                         f"{', '.join(EFFECT_NAMES)}")
+    return tuple(e for e in EFFECT_NAMES if e in names)

@@ -1,0 +1,628 @@
+"""
+Fitting engine: grid search plus local refinement of the searched
+parameters, exact least squares for the linear ones (variable projection).
+
+Given the searched parameters (valve bands, dead time, lag, plant time
+constant), the chain from OP to the unit-gain plant response is fixed and the
+PV prediction of every re-initialised segment is linear in the plant gain and
+the load coefficients (bias, drift). The kernel
+:func:`valvediag.workbench.kernels.score_batch` therefore scores a whole
+batch of searched candidates in one pass over the data each, solving the
+linear parameters exactly for each.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+from scipy.signal import lfilter
+
+from ..closedloop import process_matrices
+from ..valves import BACKLASH, HE, KANO, LINEAR
+from . import kernels
+from .data import LoopData
+from .effects import check_effects
+
+__all__ = ["Theta", "Problem", "search", "linear_columns"]
+
+PROCESS_TYPES = ("integrating", "self-regulating")
+
+
+@dataclass(frozen=True)
+class Theta:
+    """Searched parameters of one candidate chain (unused ones are ignored).
+
+    Attributes
+    ----------
+    DB : float
+        Dead band [OP unit].
+    S, J : float
+        Kano stick band and slip jump [OP unit].
+    sat_low, sat_high : float
+        Valve stops [OP unit] (infinite: none).
+    delay : float
+        Dead time [samples]; fractional values interpolate linearly.
+    lag : float
+        Lag time constant [s] (0: none).
+    tau : float
+        Plant time constant of a self-regulating plant [s].
+    phase : float
+        Phase of He's stick-slip steps, in [0, 1): the valve starts at rest
+        with the residual force ``fd + phase J`` [-]. It never forgets it
+        (each slip leaves a force ``fd``, so the input points where it
+        slips stay on a grid of step ``J``), so it is fitted.
+    """
+
+    DB: float = 0.0
+    S: float = 0.0
+    J: float = 0.0
+    sat_low: float = -math.inf
+    sat_high: float = math.inf
+    delay: float = 0.0
+    lag: float = 0.0
+    tau: float = 1.0
+    phase: float = 0.0
+
+    def replace(self, **kw) -> "Theta":
+        """Copy with some fields changed."""
+        d = dict(self.__dict__)
+        d.update(kw)
+        return Theta(**d)
+
+
+def linear_columns(effects, data: LoopData, drift_knots: int):
+    """Basis of the rate (integrating) or level (self-regulating) load.
+
+    Returns
+    -------
+    B : numpy.ndarray, shape (n, p)
+        Basis functions of time (dimensionless time ``(t - t_mid)/span``).
+    names : list of str
+    span : float
+        Time span of the used segments [s].
+    knots : numpy.ndarray
+        Interior knots in dimensionless time.
+    """
+    t = data.t
+    a = data.t[data.seg_start[0]]
+    b = data.t[data.seg_end[-1] - 1]
+    span = max(b - a, data.sample_time)
+    tau = (t - 0.5 * (a + b)) / span
+    cols, names = [], []
+    knots = np.array([])
+    if "bias" in effects:
+        cols.append(np.ones_like(t))
+        names.append("bias")
+    if "drift" in effects:
+        cols.append(tau)
+        names.append("drift")
+        k = int(drift_knots)
+        knots = -0.5 + np.arange(1, k + 1) / (k + 1)
+        for j, kn in enumerate(knots):
+            cols.append(np.maximum(0.0, tau - kn))
+            names.append(f"drift_knot_{j + 1}")
+    B = np.column_stack(cols) if cols else np.zeros((t.size, 0))
+    return B, names, span, knots
+
+
+class Problem:
+    """A loop model (effects, process type) posed on prepared data.
+
+    Parameters
+    ----------
+    data : LoopData
+    effects : tuple of str
+    process_type : {'integrating', 'self-regulating'}
+    drift_knots : int
+        Interior knots of the drift.
+    valve_model : {'kano', 'he', 'auto'}
+        Stiction model: Kano et al. (2004) or He et al. (2007) with
+        ``fs = (S + J)/2``, ``fd = (S - J)/2``; ``'auto'`` here means He when
+        more than 5 % of the OP samples are held (false Kano rests).
+    """
+
+    def __init__(self, data: LoopData, effects, process_type="integrating", drift_knots=3,
+                 valve_model="auto"):
+        if process_type not in PROCESS_TYPES:
+            raise ValueError(f"process_type must be one of {PROCESS_TYPES}, not {process_type!r}")
+        self.data = data
+        self.effects = check_effects(effects)
+        self.process_type = process_type
+        self.drift_knots = int(drift_knots)
+        if "stiction" in self.effects:
+            vm = valve_model
+            if vm == "auto":
+                vm = "he" if data.held_fraction > 0.05 else "kano"
+            if vm not in ("kano", "he"):
+                raise ValueError(f"valve_model must be 'kano' or 'he', not {valve_model!r}")
+            self.vcode = KANO if vm == "kano" else HE
+            self.valve_model = vm
+        elif "deadband" in self.effects:
+            self.vcode, self.valve_model = BACKLASH, "backlash"
+        else:
+            self.vcode, self.valve_model = LINEAR, "linear"
+        B, names, span, knots = linear_columns(self.effects, data, self.drift_knots)
+        self.basis, self.lin_names, self.span, self.knots = B, names, span, knots
+        self.p = B.shape[1]
+        self._setups: dict = {}
+        self._mats: dict = {}
+        self.n_evals = 0
+        d = data
+        self.sample_set = d.sample_set
+        self.seg_id = d.seg_id
+        self.n_train = int((self.sample_set == 0).sum())
+        self.n_held = int((self.sample_set == 1).sum())
+
+    # -- the plant-dependent linear part ------------------------------------------------
+    def qa(self, theta: Theta) -> float:
+        """Free-response factor per sample of the plant."""
+        if self.process_type == "integrating":
+            return 1.0
+        return math.exp(-self.data.sample_time / theta.tau)
+
+    def project(self, X, qa):
+        """Remove each segment's free response from the columns of ``X``."""
+        X = np.asarray(X, dtype=float)
+        two = X.ndim == 2
+        X2 = X if two else X[:, None]
+        sid = self.seg_id
+        use = self.sample_set >= 0
+        s = sid[use]
+        if qa == 1.0:
+            w = np.ones(int(use.sum()))
+        else:
+            j = np.flatnonzero(use) - self.data.seg_start[s]
+            w = qa ** j
+        nseg = self.data.seg_start.size
+        den = np.bincount(s, weights=w * w, minlength=nseg)
+        first_of = np.r_[0, np.flatnonzero(np.diff(s)) + 1]      # first used sample of each run
+        s_rank = np.cumsum(np.r_[0, (np.diff(s) != 0).astype(np.int64)])
+        out = np.zeros_like(X2)
+        for c in range(X2.shape[1]):
+            xs = X2[use, c]
+            if qa == 1.0:
+                # subtract each segment's first value (precision for integrators)
+                xs = xs - xs[first_of][s_rank]
+            num = np.bincount(s, weights=w * xs, minlength=nseg)
+            out[use, c] = xs - w * (num / np.where(den > 0, den, 1.0))[s]
+        return out if two else out[:, 0]
+
+    def plant_filter(self, b, theta: Theta):
+        """Response of the plant (unit gain) to a load basis held per sample."""
+        h = self.data.sample_time
+        if self.process_type == "integrating":
+            return lfilter([0.0, h], [1.0, -1.0], b, axis=0)
+        a = math.exp(-h / theta.tau)
+        return lfilter([0.0, 1.0 - a], [1.0, -a], b, axis=0)
+
+    def setup(self, theta: Theta):
+        """Projected load columns, projected PV and their inner products."""
+        key = theta.tau if self.process_type == "self-regulating" else 0.0
+        st = self._setups.get(key)
+        if st is not None:
+            return st
+        qa = self.qa(theta)
+        y = np.where(self.sample_set >= 0, self.data.pv, 0.0)
+        Py = self.project(np.nan_to_num(y), qa)
+        W = self.project(self.plant_filter(self.basis, theta), qa) if self.p else \
+            np.zeros((self.data.n, 0))
+        ystats = np.zeros((2, 1 + self.p))
+        G2 = np.zeros((2, self.p, self.p))
+        for s in (0, 1):
+            m = self.sample_set == s
+            ystats[s, 0] = Py[m] @ Py[m]
+            if self.p:
+                ystats[s, 1:] = W[m].T @ Py[m]
+                G2[s] = W[m].T @ W[m]
+        Ginv = np.linalg.pinv(G2[0]) if self.p else np.zeros((0, 0))
+        Lmax = int((self.data.seg_end - self.data.seg_start).max())
+        qv = qa ** np.arange(Lmax, dtype=float) if qa != 1.0 else np.ones(Lmax)
+        st = dict(qa=qa, qv=qv, Py=Py, W=W, WT=np.ascontiguousarray(np.stack([(W * (self.sample_set == s)[:, None]).T
+                                                                 for s in (0, 1)])), ystats=ystats, G2=G2,
+                  Ginv=Ginv,
+                  GinvWy=Ginv @ ystats[0, 1:] if self.p else np.zeros(0))
+        if len(self._setups) > 64:
+            self._setups.clear()
+        self._setups[key] = st
+        return st
+
+    def matrices(self, theta: Theta):
+        """Exact ZOH matrices of lag and plant with unit gain (cached)."""
+        lag = theta.lag if "lag" in self.effects else 0.0
+        tau = theta.tau if self.process_type == "self-regulating" else 1.0
+        key = (lag, tau)
+        m = self._mats.get(key)
+        if m is None:
+            m = zoh_matrices(self.process_type, lag, tau, self.data.sample_time)
+            if len(self._mats) > 4096:
+                self._mats.clear()
+            self._mats[key] = m
+        return m
+
+    def row(self, theta: Theta) -> np.ndarray:
+        """Kernel parameter row of a candidate."""
+        if self.vcode == BACKLASH:
+            p0, p1 = theta.DB, 0.0
+        elif self.vcode == KANO:
+            p0, p1 = theta.S, theta.J
+        elif self.vcode == HE:
+            p0, p1 = 0.5 * (theta.S + theta.J), 0.5 * (theta.S - theta.J)
+        else:
+            p0, p1 = 0.0, 0.0
+        sat = "saturation" in self.effects
+        lo = theta.sat_low if sat else -np.inf
+        hi = theta.sat_high if sat else np.inf
+        delay = theta.delay if "dead_time" in self.effects else 0.0
+        us0 = p1 + (theta.phase % 1.0) * theta.J if self.vcode == HE else 0.0
+        return np.array([p0, p1, lo, hi, delay, *self.matrices(theta), us0])
+
+    def score(self, thetas) -> np.ndarray:
+        """Score candidates; rows ``[sse_train, sse_heldout, gain, coef...]``.
+
+        Candidates with different plant time constants are scored per group.
+        """
+        thetas = list(thetas)
+        out = np.empty((len(thetas), 3 + self.p))
+        groups: dict = {}
+        for i, th in enumerate(thetas):
+            key = th.tau if self.process_type == "self-regulating" else 0.0
+            groups.setdefault(key, []).append(i)
+        d = self.data
+        for key, idx in groups.items():
+            st = self.setup(thetas[idx[0]])
+            P = np.ascontiguousarray(np.array([self.row(thetas[i]) for i in idx]))
+            o = np.empty((len(idx), 3 + self.p))
+            fn = kernels.score_batch if len(idx) >= 4 else kernels.score_serial
+            fn(d.op, self.vcode, P, d.seg_start, d.seg_end, d.seg_set,
+                                st["qv"], st["WT"], st["Py"], st["ystats"], st["G2"], st["Ginv"],
+                                st["GinvWy"], o)
+            out[idx] = o
+            self.n_evals += len(idx)
+        return out
+
+    # -- full evaluation of one candidate ------------------------------------------------------
+    def evaluate(self, theta: Theta) -> dict:
+        """Every signal and metric of one candidate."""
+        d = self.data
+        n = d.n
+        row = self.row(theta)
+        x, xd, z, r = (np.empty(n) for _ in range(4))
+        kernels.simulate_chain(d.op, self.vcode, row[0], row[1], row[11], row[2], row[3], row[4],
+                               *row[5:11], x, xd, z, r)
+        st = self.setup(theta)
+        qa = st["qa"]
+        Pr = self.project(r, qa)
+        X = np.column_stack([Pr, st["W"]])
+        tr = self.sample_set == 0
+        coef, *_ = np.linalg.lstsq(X[tr], st["Py"][tr], rcond=None)
+        e = st["Py"] - X @ coef
+        used = self.sample_set >= 0
+        e[~used] = np.nan
+        gain = float(coef[0])
+        lin = dict(zip(self.lin_names, map(float, coef[1:])))
+        # load signal in OP units (rate or level divided by the gain)
+        beta = self.basis @ coef[1:] if self.p else np.zeros(n)
+        load = -beta / gain if gain != 0 else np.full(n, np.nan)
+        lagged = z if "lag" in self.effects else xd
+        pv_model = np.where(used, d.pv - e, np.nan)
+        return dict(theta=theta, gain=gain, lin=lin, valve=x, delayed=xd, lagged=lagged,
+                    load=load, response=r, residual=e, pv_model=pv_model, Py=st["Py"])
+
+
+def zoh_matrices(process_type, lag, tau, h):
+    """Exact zero-order-hold matrices of lag + unit-gain plant.
+
+    Returns ``(f00, f01, f10, f11, g0, g1)`` of ``s_{k+1} = Phi s_k + Gam x_k``
+    with ``s = [z, r]`` (lag output, plant output); closed forms of
+    :func:`valvediag.closedloop.process_matrices` (which they match), as that
+    function's matrix exponential is too slow to call per candidate.
+    """
+    if lag <= 0:
+        if process_type == "integrating":
+            return (0.0, 0.0, 0.0, 1.0, 0.0, h)
+        b = math.exp(-h / tau)
+        return (0.0, 0.0, 0.0, b, 0.0, 1.0 - b)
+    a = math.exp(-h / lag)
+    if process_type == "integrating":
+        return (a, 0.0, lag * (1.0 - a), 1.0, 1.0 - a, h - lag * (1.0 - a))
+    if abs(lag - tau) < 1e-6 * tau:
+        _, _, pg, gg, _ = process_matrices(process_type, [1.0], [tau], [lag], [0.0], [h])
+        return (pg[0, 0, 0], pg[0, 0, 1], pg[0, 1, 0], pg[0, 1, 1], gg[0, 0], gg[0, 1])
+    b = math.exp(-h / tau)
+    c = lag / (lag - tau)
+    f10 = c * (a - b)
+    g1 = 1.0 - (lag * a - tau * b) / (lag - tau)
+    return (a, 0.0, f10, b, 1.0 - a, g1)
+
+
+# -- search ------------------------------------------------------------------------------------
+def max_delay(data: LoopData) -> float:
+    """Longest dead time searched [samples]: 30 % of the OP period, at most
+    300 samples or two horizons."""
+    h = data.sample_time
+    P = data.period if np.isfinite(data.period) else data.horizon * 4 * h
+    return float(max(5, min(round(0.3 * P / h), 300, data.horizon * 2)))
+
+
+def _period(data: LoopData) -> float:
+    h = data.sample_time
+    return data.period if np.isfinite(data.period) else data.horizon * 4 * h
+
+
+def _valve_values(prob: Problem, coarse: bool, joint: bool = False):
+    """Valve band candidates as field dicts (``DB``; ``S``, ``J``; He's
+    ``phase``). ``joint``: a smaller set, to be crossed with another axis."""
+    bm = prob.data.band_max
+    if prob.vcode == BACKLASH:
+        k = 12 if coarse else 32
+        return [dict(DB=float(v)) for v in bm * np.arange(1, k + 1) / k]
+    if prob.vcode in (KANO, HE):
+        if joint:
+            k, rs, phs = 8, (0.0, 1 / 3, 2 / 3, 1.0), (0.0, 0.5)
+        elif coarse:
+            k, rs, phs = 10, (0.0, 0.25, 0.5, 0.75, 1.0), (0.0, 0.25, 0.5, 0.75)
+        else:
+            k, rs, phs = 24, np.linspace(0, 1, 11), (None,)
+        if prob.vcode == KANO:
+            phs = (0.0,)
+        out = []
+        for v in bm * np.arange(1, k + 1) / k:
+            for r in rs:
+                for ph in (phs if r > 0 else phs[:1]):
+                    c = dict(S=float(v), J=float(v * r))
+                    if ph is not None and prob.vcode == HE:
+                        c["phase"] = float(ph)
+                    out.append(c)
+        return out
+    return [dict()]
+
+
+def _grid(prob: Problem, coarse: bool):
+    """The grid of one searched stage at a time, as lists of field dicts."""
+    d = prob.data
+    h = d.sample_time
+    P = _period(d)
+    axes = []
+    if prob.process_type == "self-regulating":
+        axes.append([dict(tau=float(v)) for v in np.geomspace(h, max(5 * P, 10 * h),
+                                                               10 if coarse else 24)])
+    if prob.vcode != LINEAR:
+        axes.append(_valve_values(prob, coarse))
+    if "saturation" in prob.effects:
+        op = d.op
+        lows = np.r_[-np.inf, np.percentile(op, [0.5, 1, 2, 3, 5, 7.5, 10, 15])]
+        highs = np.r_[np.percentile(op, [85, 90, 92.5, 95, 97, 98, 99, 99.5]), np.inf]
+        axes.append([dict(sat_low=float(a), sat_high=float(b)) for a in lows for b in highs])
+    if "dead_time" in prob.effects:
+        dmax = max_delay(d)
+        k = 12 if coarse else int(dmax) + 1
+        axes.append([dict(delay=float(v)) for v in np.unique(np.round(np.linspace(0, dmax, k)))])
+    if "lag" in prob.effects:
+        axes.append([dict(lag=float(v)) for v in
+                     np.geomspace(0.5 * h, max(0.5 * P, 2 * h), 8 if coarse else 20)])
+    return axes
+
+
+def _best(prob: Problem, cands, current=None):
+    if current is not None:
+        cands = [current] + [c for c in cands if c != current]
+    sc = prob.score(cands)
+    i = int(np.nanargmin(sc[:, 0]))
+    return cands[i], float(sc[i, 0]), cands, sc[:, 0]
+
+
+def _continuous(prob: Problem, theta: Theta):
+    """Names, values and initial steps of the continuous searched parameters
+    (transformed: ratios and logarithms)."""
+    bm = prob.data.band_max
+    names, x0, steps = [], [], []
+    if prob.vcode == BACKLASH:
+        names.append("DB")
+        x0.append(theta.DB)
+        steps.append(bm / 20)
+    elif prob.vcode in (KANO, HE):
+        names += ["S", "Jr"]
+        x0 += [theta.S, theta.J / theta.S if theta.S > 0 else 0.0]
+        steps += [bm / 20, 0.1]
+        if prob.vcode == HE:
+            names.append("phase")
+            x0.append(theta.phase % 1.0)
+            steps.append(0.25)
+    if "dead_time" in prob.effects:
+        names.append("delay")
+        x0.append(theta.delay)
+        steps.append(2.0)
+    if "lag" in prob.effects:
+        names.append("loglag")
+        x0.append(math.log(max(theta.lag, 0.05 * prob.data.sample_time)))
+        steps.append(0.4)
+    if prob.process_type == "self-regulating":
+        names.append("logtau")
+        x0.append(math.log(theta.tau))
+        steps.append(0.4)
+    return names, np.array(x0, dtype=float), np.array(steps, dtype=float)
+
+
+def _from_vector(theta: Theta, names, v, dmax) -> Theta:
+    kw = {}
+    for nm, val in zip(names, v):
+        if nm == "DB":
+            kw["DB"] = max(float(val), 0.0)
+        elif nm == "S":
+            kw["S"] = max(float(val), 0.0)
+        elif nm == "Jr":
+            kw["Jr"] = float(np.clip(val, 0.0, 1.0))
+        elif nm == "phase":
+            kw["phase"] = float(val % 1.0)
+        elif nm == "delay":
+            kw["delay"] = float(np.clip(val, 0.0, dmax))
+        elif nm == "loglag":
+            kw["lag"] = float(math.exp(min(val, 50.0)))
+        elif nm == "logtau":
+            kw["tau"] = float(math.exp(min(val, 50.0)))
+    if "S" in kw:
+        kw["J"] = kw.pop("Jr", 0.0) * kw["S"]
+    return theta.replace(**kw)
+
+
+def _refine(prob: Problem, theta: Theta, maxfev: int) -> tuple[Theta, float]:
+    """Nelder-Mead on all continuous searched parameters jointly (valve
+    bands, dead time, lag, time constant): their errors trade off along
+    valleys that a coordinate-wise search crosses slowly."""
+    names, x0, steps = _continuous(prob, theta)
+    f0 = float(prob.score([theta])[0, 0])
+    if not names:
+        return theta, f0
+    dmax = max_delay(prob.data)
+    cache = {}
+
+    def f(v):
+        th = _from_vector(theta, names, v, dmax)
+        if th not in cache:
+            cache[th] = float(prob.score([th])[0, 0])
+        return cache[th]
+
+    simplex = [x0] + [x0 + np.eye(len(x0))[i] * steps[i] for i in range(len(x0))]
+    res = minimize(f, x0, method="Nelder-Mead",
+                   options=dict(initial_simplex=np.array(simplex), maxfev=maxfev,
+                                xatol=1e-3, fatol=0.0))
+    fb = f(res.x)
+    if fb <= f0:
+        return _from_vector(theta, names, res.x, dmax), fb
+    return theta, f0
+
+
+def initial_theta(prob: Problem) -> Theta:
+    """A starting point: mid-range values of the searched parameters."""
+    d = prob.data
+    h = d.sample_time
+    P = _period(d)
+    return Theta(DB=0.3 * d.band_max, S=0.3 * d.band_max, J=0.15 * d.band_max,
+                 sat_low=-math.inf, sat_high=math.inf, delay=0.0,
+                 lag=float(max(0.05 * P, h)), tau=float(max(P / 4, 2 * h)))
+
+
+def _distinct_starts(cands, scores, k):
+    """The ``k`` best candidates, at most one per value of the non-valve
+    parameters and of the slip-jump ratio (so that the starts lie in
+    different valleys)."""
+    order = np.argsort(scores)
+    seen, out = set(), []
+    for i in order:
+        c = cands[i]
+        key = (round(c.delay, 3), round(c.lag, 6), round(c.tau, 6), c.sat_low, c.sat_high,
+               round(4 * c.J / c.S) if c.S > 0 else 0)
+        if key in seen:
+            continue
+        seen.add(key)
+        out.append(c)
+        if len(out) == k:
+            break
+    return out
+
+
+def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
+           maxfev: int | None = None) -> Theta:
+    """Global grid search, then local refinement from the best few points.
+
+    Parameters
+    ----------
+    prob : Problem
+    start : Theta, optional
+        Warm start (e.g. the parameters of a smaller model); it is also
+        refined.
+    starts : int
+        Number of grid points refined locally (distinct in dead time, lag,
+        time constant, saturation).
+    maxfev : int, optional
+        Evaluations allowed per local refinement; default ``40 dim + 20``.
+
+    Returns
+    -------
+    Theta
+
+    Notes
+    -----
+    The grid is searched one stage at a time except that the valve band is
+    crossed with the dead time and with the lag on a coarse joint grid: a
+    longer dead time or lag otherwise passes for a wider band. The local
+    step is Nelder-Mead on all continuous parameters jointly; the discrete
+    saturation stops are searched on their grid after it.
+    """
+    theta = start if start is not None else initial_theta(prob)
+    axes = _grid(prob, coarse=True)
+    pool_c, pool_s = [], []
+    if axes:
+        valve_axis = _valve_values(prob, True, joint=True) if prob.vcode != LINEAR else None
+        for ax in axes:
+            if valve_axis is not None and ax is not axes[0] and \
+                    any(k in ax[0] for k in ("delay", "lag")):
+                cands = [theta.replace(**a, **v) for a in ax for v in valve_axis]
+            else:
+                cands = [theta.replace(**a) for a in ax]
+            theta, _, c, sc = _best(prob, cands, current=theta)
+            pool_c += c
+            pool_s += list(sc)
+        # one coordinate sweep on the fine grids
+        for ax in _grid(prob, coarse=False):
+            theta, _, c, sc = _best(prob, [theta.replace(**a) for a in ax], current=theta)
+            pool_c += c
+            pool_s += list(sc)
+    names, _, _ = _continuous(prob, theta)
+    if not names:
+        return theta
+    starts_ = _distinct_starts(pool_c, np.array(pool_s), starts) if pool_c else [theta]
+    if start is not None and start not in starts_:
+        starts_.append(prob_clip(prob, start))
+    fev = maxfev or 40 * len(names) + 20
+    best, fb = None, np.inf
+    for s0 in starts_:
+        th, f = _refine(prob, s0, fev)
+        if f < fb:
+            best, fb = th, f
+    if "saturation" in prob.effects:
+        ax = _grid(prob, coarse=False)
+        for a in ax:
+            if "sat_low" in a[0]:
+                best, fb, _, _ = _best(prob, [best.replace(**x) for x in a], current=best)
+    if prob.vcode in (KANO, HE):
+        best = _cliff_guard(prob, best, fb)
+    return best
+
+
+#: Relative training error allowed when backing the stick band off its cliff.
+CLIFF_TOL = 0.10
+
+
+def _cliff_guard(prob: Problem, theta: Theta, f_best: float) -> Theta:
+    """Back the stick band ``S`` off the cliff of the error surface.
+
+    In a stick-slip limit cycle the valve slips on the first sample where
+    the OP has moved ``S``, so the excess is at most one OP step. A model
+    ``S`` a hair above the true one misses a slip whenever an event's excess
+    is smaller than that hair, and its prediction then diverges for the rest
+    of the segment; below the true ``S`` the model slips a sample early, a
+    small error. The training optimum lies on the flat top right at the
+    cliff's edge (held-out events may have smaller excesses), so we take the
+    smallest ``S`` within two median OP steps below it whose training error
+    is within :data:`CLIFF_TOL` of the best.
+    """
+    if theta.S <= 0:
+        return theta
+    step = float(np.median(np.abs(np.diff(prob.data.op))))
+    if not step > 0:
+        return theta
+    cands = []
+    for k in range(0, 9):
+        S = max(theta.S - 0.25 * k * step, 1e-9)
+        cands.append(theta.replace(S=S, J=min(theta.J, S)))
+    sc = prob.score(cands)[:, 0]
+    ok = np.flatnonzero(sc <= f_best * (1.0 + CLIFF_TOL))
+    return cands[int(ok.max())] if ok.size else theta
+
+
+def prob_clip(prob: Problem, theta: Theta) -> Theta:
+    """Keep a warm start inside the searched ranges."""
+    return theta.replace(delay=float(min(theta.delay, max_delay(prob.data))))

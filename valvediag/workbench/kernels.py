@@ -1,0 +1,255 @@
+"""
+Compiled kernels of the workbench: the OP-driven chain and batch scoring.
+
+The chain, per sample ``k`` (sample time ``h``)::
+
+    x_k   = sat(valve(op_k))                 valve position      [OP unit]
+    xd_k  = x_{k - D}                        delayed position    [OP unit]
+                                             (D in samples, fractional:
+                                             linear interpolation)
+    s_k+1 = Phi s_k + Gam xd_k               s = [z, r]: lag output and the
+                                             unit-gain plant response
+
+``Phi`` and ``Gam`` are the exact zero-order-hold matrices of the lag and the
+plant (integrator or first order) with unit gain, from
+:func:`valvediag.closedloop.process_matrices`. The valve step is the one of
+:mod:`valvediag.valves` (shared with the closed-loop simulator).
+
+The score of a candidate is the least-squares error of the PV prediction
+over re-initialised segments. The prediction is linear in the plant gain and
+in the load coefficients, so those are solved exactly (variable projection):
+per segment the free response of the plant (a constant for an integrator,
+``a**j`` for a first-order plant) is projected out, which re-initialises the
+prediction to the best initial state of the segment.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from ..valves import HE, _valve_init, _valve_step
+
+__all__ = ["simulate_chain", "score_batch"]
+
+
+@numba.njit(cache=True, inline="always")
+def _chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out, x_out,
+           xd_out, z_out, keep):
+    n = u.shape[0]
+    x, up, d, stuck, us, cause = _valve_init(vcode, u[0], u[0])
+    if vcode == HE:
+        # He's valve keeps the phase of its stick-slip steps for ever: its
+        # initial residual force is a parameter (|us0| <= fs: at rest)
+        us = us0
+    x0 = min(max(u[0], lo), hi)
+    nd = int(np.floor(delay))
+    fr = delay - nd
+    # ring buffer of the last nd + 2 positions: x_{k-nd-1} .. x_k
+    L = nd + 2
+    buf = np.empty(L)
+    for j in range(L):
+        buf[j] = x0
+    w = 0                  # where x_k goes
+    ia = L - nd if nd > 0 else 0        # x_{k-nd}
+    if ia >= L:
+        ia -= L
+    ib = ia - 1 if ia > 0 else L - 1    # x_{k-nd-1}
+    z = x0
+    r = 0.0
+    for k in range(n):
+        x, up, d, stuck, us, cause = _valve_step(vcode, p0, p1, u[k], x, up, d, stuck, us, cause)
+        xs = min(max(x, lo), hi)
+        buf[w] = xs
+        xd = (1.0 - fr) * buf[ia] + fr * buf[ib] if fr > 0.0 else buf[ia]
+        w = w + 1 if w + 1 < L else 0
+        ia = ia + 1 if ia + 1 < L else 0
+        ib = ib + 1 if ib + 1 < L else 0
+        if keep:
+            x_out[k] = xs
+            xd_out[k] = xd
+            z_out[k] = z
+        r_out[k] = r
+        z1 = f00 * z + f01 * r + g0 * xd
+        r = f10 * z + f11 * r + g1 * xd
+        z = z1
+
+
+@numba.njit(cache=True)
+def simulate_chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1,
+                   x_out, xd_out, z_out, r_out):
+    """Run the chain on one OP record, keeping every intermediate signal.
+
+    ``delay`` is the dead time in samples (fractional: the delayed position
+    interpolates linearly between samples, which is exact for the integral
+    of a held input). ``r_out[k]`` is the unit-gain plant response at sample
+    ``k``, driven by the delayed, lagged valve positions before ``k``."""
+    _chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out, x_out,
+           xd_out, z_out, True)
+
+
+@numba.njit(cache=True, inline="always")
+def _chain_response(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out):
+    """Unit-gain plant response of the chain only (the sequential part)."""
+    _chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out, r_out, r_out,
+           r_out, False)
+
+
+@numba.njit(cache=True, fastmath=True)
+def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, Py, ystats, G2, Ginv,
+               GinvWy, out, r):
+    p = WT.shape[1]
+    ns = seg_start.shape[0]
+    _chain_response(u, vcode, P[i, 0], P[i, 1], P[i, 11], P[i, 2], P[i, 3], P[i, 4], P[i, 5],
+                    P[i, 6], P[i, 7], P[i, 8], P[i, 9], P[i, 10], r)
+    integ = qv.shape[0] > 1 and qv[1] == 1.0
+    # inner products of the projected response, per set (0 train, 1 held-out)
+    rr = np.zeros(2)
+    ry = np.zeros(2)
+    rW = np.zeros((2, p))
+    for j in range(ns):
+        st = seg_set[j]
+        if st < 0:
+            continue
+        a = seg_start[j]
+        b = seg_end[j]
+        # for an integrator a constant per segment is projected out anyway:
+        # subtract the first value to keep the sums well scaled
+        off = r[a] if integ else 0.0
+        s_rr = 0.0
+        s_ry = 0.0
+        sq = 0.0
+        qq = 0.0
+        for k in range(a, b):
+            rc = r[k] - off
+            q = qv[k - a]
+            s_rr += rc * rc
+            s_ry += rc * Py[k]
+            sq += q * rc
+            qq += q * q
+        rr[st] += s_rr - sq * sq / qq
+        ry[st] += s_ry
+    # the fixed columns are already projected (orthogonal to each segment's
+    # free response), so their inner products need no per-segment offset:
+    # one contiguous dot product per column and set (WT is masked per set)
+    for t2 in range(2):
+        for c in range(p):
+            w = WT[t2, c]
+            s_w = 0.0
+            for k in range(r.shape[0]):
+                s_w += r[k] * w[k]
+            rW[t2, c] = s_w
+    # training least squares, Schur complement on the gain column
+    a0 = rr[0]
+    cGb = 0.0
+    for c in range(p):
+        cGb += rW[0, c] * GinvWy[c]
+    sc = a0
+    for c1 in range(p):
+        t = 0.0
+        for c2 in range(p):
+            t += Ginv[c1, c2] * rW[0, c2]
+        sc -= rW[0, c1] * t
+    gain = (ry[0] - cGb) / sc if (a0 > 0.0 and sc > 1e-12 * a0) else 0.0
+    coef = np.empty(p)
+    for c1 in range(p):
+        t = 0.0
+        for c2 in range(p):
+            t += Ginv[c1, c2] * (ystats[0, 1 + c2] - rW[0, c2] * gain)
+        coef[c1] = t
+    out[i, 2] = gain
+    for c in range(p):
+        out[i, 3 + c] = coef[c]
+    # error sum of squares per set, from the inner products
+    for t2 in range(2):
+        sse = ystats[t2, 0] - 2.0 * gain * ry[t2] + gain * gain * rr[t2]
+        for c1 in range(p):
+            sse += 2.0 * coef[c1] * (gain * rW[t2, c1] - ystats[t2, 1 + c1])
+            for c2 in range(p):
+                sse += coef[c1] * G2[t2, c1, c2] * coef[c2]
+        out[i, t2] = sse
+
+
+@numba.njit(cache=True, parallel=True)
+def score_batch(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, Py, ystats, G2, Ginv, GinvWy,
+                out):
+    """Score a batch of candidates in parallel (see :func:`score_serial`)."""
+    n = u.shape[0]
+    for i in numba.prange(P.shape[0]):
+        r = np.empty(n)
+        _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, Py, ystats, G2, Ginv,
+                   GinvWy, out, r)
+
+
+@numba.njit(cache=True)
+def score_serial(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, Py, ystats, G2, Ginv, GinvWy,
+                 out):
+    """Score a batch of candidate chains, one after the other.
+
+    Parameters (all float64 unless noted)
+    ----------
+    u : (n,) OP
+    vcode : int, valve model code
+    P : (m, 12) candidates: p0, p1, lo, hi, delay [samples], f00, f01, f10, f11, g0, g1,
+        us0 (initial residual force of He's valve)
+    seg_start, seg_end : (ns,) int64 segment bounds [start, end)
+    seg_set : (ns,) int64, 0 training, 1 held-out, -1 unused
+    qv : (Lmax,) free response of the plant from a unit initial state,
+         ``qa**j`` (all ones for an integrator)
+    WT : (2, p, n) projected fixed columns (load terms), per set (zero
+         outside the set's segments)
+    Py : (n,) projected PV
+    ystats : (2, 1 + p) per set: [yy, Wy_0..Wy_p-1]
+    G2 : (2, p, p) Gram matrices of the fixed columns per set
+    Ginv : (p, p) inverse Gram of the training fixed columns
+    GinvWy : (p,) ``Ginv @ Wy_train``
+    out : (m, 3 + p) written: sse_train, sse_heldout, gain, coef_0..p-1
+
+    Starting a parallel region costs milliseconds on a busy machine, so
+    single candidates (local refinement) use this serial version.
+    """
+    r = np.empty(u.shape[0])
+    for i in range(P.shape[0]):
+        _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, Py, ystats, G2, Ginv,
+                   GinvWy, out, r)
+
+
+@numba.njit(cache=True)
+def turning_points(u, delta):
+    """Reversals of ``u`` with hysteresis ``delta``.
+
+    An extreme is confirmed once ``u`` has moved more than ``delta`` away
+    from it, so noise smaller than ``delta`` makes no reversal. Returns the
+    index of each extreme, its sign (+1 maximum, -1 minimum) and the index at
+    which it was confirmed."""
+    n = u.shape[0]
+    idx = np.empty(n, np.int64)
+    sgn = np.empty(n, np.int64)
+    conf = np.empty(n, np.int64)
+    m = 0
+    hi_i = 0
+    lo_i = 0
+    d = 0          # +1 rising (looking for a maximum), -1 falling, 0 unknown
+    for k in range(1, n):
+        v = u[k]
+        if v != v:
+            continue
+        if u[hi_i] != u[hi_i] or v > u[hi_i]:
+            hi_i = k
+        if u[lo_i] != u[lo_i] or v < u[lo_i]:
+            lo_i = k
+        if d >= 0 and u[hi_i] - v > delta:
+            # a maximum at hi_i, confirmed now (ignore the very first if unknown)
+            idx[m] = hi_i
+            sgn[m] = 1
+            conf[m] = k
+            m += 1
+            d = -1
+            lo_i = k
+        elif d <= 0 and v - u[lo_i] > delta:
+            idx[m] = lo_i
+            sgn[m] = -1
+            conf[m] = k
+            m += 1
+            d = 1
+            hi_i = k
+    return idx[:m], sgn[:m], conf[:m]

@@ -1,0 +1,454 @@
+"""
+The loop model (named, swappable effects) and its fitted result.
+
+:class:`LoopModel` is the workbench's ``ModelChain``: it only orchestrates.
+Each physical step is a named effect from :data:`~valvediag.workbench.EFFECTS`;
+the model is driven by the measured OP and predicts the PV. Every
+intermediate signal is kept in the frozen :class:`ModelFit`::
+
+    >>> from valvediag.workbench import LoopModel, prepare_loop
+    >>> data = prepare_loop(pv, op, sample_time=1.0)
+    >>> fit = LoopModel(("deadband", "dead_time")).fit(data)
+    >>> fit.params, fit.fit_pct, fit.heldout_rmse, fit.bic
+    >>> fit.plot()                 # measured vs model, held-out blocks shaded
+    >>> fit.plot_chain()           # OP -> valve -> delayed -> lagged -> input -> PV
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .data import LoopData, _shade_heldout
+from .effects import EFFECTS, PLANT_PARAMS, check_effects
+from ..valves import HE, KANO
+from .fit import PROCESS_TYPES, Problem, Theta, search
+
+__all__ = ["LoopModel", "ModelFit", "fit_model"]
+
+
+@dataclass(frozen=True)
+class LoopModel:
+    """A loop model made of named effects.
+
+    Parameters
+    ----------
+    effects : str or tuple of str
+        Effect names (see :data:`valvediag.workbench.EFFECTS`):
+        ``'deadband'``, ``'stiction'``, ``'saturation'``, ``'dead_time'``,
+        ``'lag'``, ``'bias'``, ``'drift'``; or one comma-separated string.
+        ``'stiction'`` replaces ``'deadband'`` (a Kano valve with ``J = 0`` is
+        a dead band of width ``S``).
+    process_type : {'integrating', 'self-regulating'}
+        Plant: ``g / s`` (gain ``g = K/tau`` [PV unit / (OP unit s)]) or
+        ``K / (tau s + 1)``.
+    valve_model : {'auto', 'kano', 'he'}
+        Stiction model: Kano et al. (2004), or He et al. (2007) with the
+        same ``S = fs + fd`` and ``J = fs - fd``. ``'auto'``: He when more
+        than 5 % of the OP samples repeat the previous one (held or
+        compressed data, false rests for Kano's model), else Kano.
+    drift_knots : int
+        Interior knots of the piecewise-linear drift.
+
+    Notes
+    -----
+    He's valve moves in slip steps of ``J`` even under a slowly ramping
+    input and keeps the phase of those steps for ever, so its initial
+    residual force is fitted too (``Theta.phase``); its error surface is far
+    rougher than Kano's. A Kano valve driven by a noisy OP sticks at every
+    noise reversal, as the model says; a real positioner may filter them.
+
+    The chain is: OP -> valve (dead band or stiction, then saturation) ->
+    dead time (whole samples) -> first-order lag -> plant input minus load
+    (bias + drift) -> plant -> PV. The load enters after the lag; for a
+    constant or slowly varying load that is the same as before it.
+
+    References
+    ----------
+    .. [1] Kano, M., Maruta, H., Kugemoto, H., Shimizu, K. (2004). Practical
+       model and detection algorithm for valve stiction. IFAC DYCOPS 7.
+    .. [2] He, Q. P., Wang, J., Pottmann, M., Qin, S. J. (2007). A curve
+       fitting method for detecting valve stiction in oscillating control
+       loops. Ind. Eng. Chem. Res. 46, 4549-4560.
+    .. [3] Hägglund, T. (2007). Automatic on-line estimation of backlash in
+       control loops. Journal of Process Control 17, 489-499.
+    """
+
+    effects: tuple[str, ...] = ()
+    process_type: str = "integrating"
+    valve_model: str = "auto"
+    drift_knots: int = 3
+
+    def __post_init__(self):
+        eff = check_effects(self.effects)
+        if "stiction" in eff and "deadband" in eff:
+            eff = tuple(e for e in eff if e != "deadband")
+        object.__setattr__(self, "effects", eff)
+        if self.process_type not in PROCESS_TYPES:
+            raise ValueError(f"process_type must be one of {PROCESS_TYPES}, not {self.process_type!r}")
+        if self.valve_model not in ("auto", "kano", "he"):
+            raise ValueError(f"valve_model must be 'auto', 'kano' or 'he', not {self.valve_model!r}")
+
+    @property
+    def name(self) -> str:
+        """The effects joined by '+', or 'plant only'."""
+        return "+".join(self.effects) if self.effects else "plant only"
+
+    def add(self, effect: str) -> "LoopModel":
+        """This model with one more effect.
+
+        Parameters
+        ----------
+        effect : str
+
+        Returns
+        -------
+        LoopModel
+        """
+        return LoopModel(self.effects + (effect,), self.process_type, self.valve_model,
+                         self.drift_knots)
+
+    def candidates(self) -> tuple[str, ...]:
+        """Effects that could still be added (stiction can replace a dead band)."""
+        return tuple(e for e in EFFECTS if e not in self.effects
+                     and not (e == "deadband" and "stiction" in self.effects))
+
+    def fit(self, data: LoopData, *, start=None) -> "ModelFit":
+        """Fit the model to prepared data.
+
+        Parameters
+        ----------
+        data : LoopData
+            From :func:`valvediag.workbench.prepare_loop`.
+        start : ModelFit or Theta, optional
+            Warm start for the searched parameters (a smaller model's fit);
+            refined besides the grid's best points. A dead band width seeds
+            the stick band ``S`` (with ``J = 0``).
+
+        Returns
+        -------
+        ModelFit
+        """
+        vms = (self.valve_model,) if "stiction" in self.effects else ("kano",)
+        th0 = None
+        if isinstance(start, ModelFit):
+            th0 = start.theta
+            if "stiction" in self.effects and "stiction" not in start.effects and th0.DB > 0:
+                th0 = th0.replace(S=th0.DB, J=0.0)
+        elif start is not None:
+            th0 = start
+        best = None
+        for vm in vms:
+            prob = Problem(data, self.effects, self.process_type, self.drift_knots, vm)
+            th = search(prob, th0)
+            sse = float(prob.score([th])[0, 0])
+            if best is None or sse < best[2]:
+                best = (prob, th, sse)
+        prob, th, _ = best
+        return _result(self, prob, th)
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """A fitted loop model with every intermediate signal.
+
+    Attributes
+    ----------
+    model : LoopModel
+    params : dict
+        Fitted parameters by name: ``gain``, ``tau`` (self-regulating),
+        ``DB`` or ``S``, ``J``, ``sat_low``, ``sat_high``, ``dead_time``,
+        ``lag``, ``bias``, ``drift`` (units in :attr:`units`).
+    units : dict
+        Unit of each parameter.
+    derived : dict
+        Quantities derived from the parameters: ``load_offset`` [OP unit]
+        (``-bias/gain``), ``load_drift`` [OP unit/s], ``valve_model``.
+    t : numpy.ndarray
+        Time [s].
+    op, valve, delayed, lagged, load, plant_input : numpy.ndarray
+        The chain [OP unit]: controller output, valve position, delayed
+        position, lagged position, estimated load, plant input
+        (``lagged - load``).
+    pv, pv_model, residual : numpy.ndarray
+        Measured PV, model PV (each segment re-initialised to its best
+        initial state) and ``pv - pv_model`` [PV unit]; NaN outside scored
+        segments.
+    sample_set : numpy.ndarray of int
+        0 training, 1 held-out, -1 not scored.
+    fit_pct : float
+        Held-out fit ``100 (1 - |e| / |y0|)`` [%], ``y0`` the PV with each
+        segment's free response removed (the error of a model that predicts
+        no change).
+    fit_pct_train : float
+        The same on the training blocks [%].
+    heldout_rmse, train_rmse : float
+        Root-mean-square error [PV unit].
+    bic : float
+        ``n ln(SSE/n) + k ln(n)`` on the training samples.
+    n_params : int
+        ``k``: gain, load coefficients and searched parameters.
+    n_train, n_heldout : int
+        Scored samples.
+    theta : Theta
+        The searched parameters (for warm starts).
+    data : LoopData
+    """
+
+    model: LoopModel
+    params: dict
+    units: dict
+    derived: dict
+    t: np.ndarray = field(repr=False)
+    op: np.ndarray = field(repr=False)
+    valve: np.ndarray = field(repr=False)
+    delayed: np.ndarray = field(repr=False)
+    lagged: np.ndarray = field(repr=False)
+    load: np.ndarray = field(repr=False)
+    plant_input: np.ndarray = field(repr=False)
+    pv: np.ndarray = field(repr=False)
+    pv_model: np.ndarray = field(repr=False)
+    residual: np.ndarray = field(repr=False)
+    sample_set: np.ndarray = field(repr=False)
+    fit_pct: float
+    fit_pct_train: float
+    heldout_rmse: float
+    train_rmse: float
+    bic: float
+    n_params: int
+    n_train: int
+    n_heldout: int
+    theta: Theta = field(repr=False)
+    data: LoopData = field(repr=False)
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        """The model's effects."""
+        return self.model.effects
+
+    def summary(self) -> str:
+        """A few lines: model, parameters with units, scores."""
+        lines = [f"model: {self.model.name} ({self.model.process_type})"]
+        for k, v in self.params.items():
+            lines.append(f"  {k:10s} = {_fmt(v)} [{self.units.get(k, '')}]")
+        lines.append(f"  fit {self.fit_pct:.1f} % held-out ({self.fit_pct_train:.1f} % training), "
+                     f"held-out RMSE {self.heldout_rmse:.4g}, BIC {self.bic:.1f}, "
+                     f"{self.n_params} parameters")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (NaN as None)."""
+        return {"effects": list(self.effects), "params": {k: _num(v) for k, v in self.params.items()},
+                "fit_pct": _num(self.fit_pct), "heldout_rmse": _num(self.heldout_rmse),
+                "bic": _num(self.bic)}
+
+    def diagnose(self, **kw):
+        """Where the model fails: see :func:`valvediag.workbench.diagnose_fit`.
+
+        Parameters
+        ----------
+        **kw
+            Passed on.
+
+        Returns
+        -------
+        Diagnosis
+        """
+        from .diagnosis import diagnose_fit
+
+        return diagnose_fit(self, **kw)
+
+    def plot(self, ax=None, *, other: "ModelFit | None" = None, window=None):
+        """Measured PV against the model (and optionally a second model).
+
+        Parameters
+        ----------
+        ax : matplotlib.axes.Axes, optional
+        other : ModelFit, optional
+            A second fit drawn for comparison ("before").
+        window : tuple of float, optional
+            Time range to show [s].
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(9, 3.2))
+        _shade_heldout(ax, self.data)
+        sl = _window(self.t, window)
+        ax.plot(self.t[sl], self.pv[sl], color="0.35", lw=0.8, label="measured PV")
+        if other is not None:
+            ax.plot(other.t[sl], other.pv_model[sl], color="C3", lw=0.9, alpha=0.8,
+                    label=f"{other.model.name}: fit {other.fit_pct:.1f} %")
+        ax.plot(self.t[sl], self.pv_model[sl], color="C0", lw=1.0,
+                label=f"{self.model.name}: fit {self.fit_pct:.1f} %")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("PV")
+        ax.legend(loc="upper right", fontsize=8)
+        ax.set_title("measured vs model (held-out blocks shaded; prediction re-initialised "
+                     f"every {self.data.horizon} samples)", fontsize=9)
+        return ax
+
+    def plot_chain(self, axes=None, *, window=None):
+        """Every signal of the chain, OP to PV, on stacked axes.
+
+        Parameters
+        ----------
+        axes : sequence of 3 matplotlib.axes.Axes, optional
+        window : tuple of float, optional
+            Time range to show [s].
+
+        Returns
+        -------
+        list of matplotlib.axes.Axes
+        """
+        import matplotlib.pyplot as plt
+
+        if axes is None:
+            _, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+        sl = _window(self.t, window)
+        t = self.t[sl]
+        a0, a1, a2 = axes
+        a0.plot(t, self.op[sl], color="C1", lw=0.8, label="OP")
+        a0.plot(t, self.valve[sl], color="C2", lw=0.9, label="valve position")
+        if "dead_time" in self.effects:
+            a0.plot(t, self.delayed[sl], color="C4", lw=0.8, label="delayed")
+        if "lag" in self.effects:
+            a0.plot(t, self.lagged[sl], color="C5", lw=0.8, label="lagged")
+        a0.set_ylabel("OP unit")
+        a0.legend(loc="upper right", fontsize=8)
+        a1.plot(t, self.plant_input[sl], color="C0", lw=0.8, label="plant input (lagged - load)")
+        if np.any(np.nan_to_num(self.load[sl]) != 0):
+            a1.plot(t, self.load[sl], color="C3", lw=0.8, label="load")
+        a1.set_ylabel("OP unit")
+        a1.legend(loc="upper right", fontsize=8)
+        a2.plot(t, self.pv[sl], color="0.35", lw=0.8, label="measured PV")
+        a2.plot(t, self.pv_model[sl], color="C0", lw=0.9, label="model PV")
+        a2.set_ylabel("PV")
+        a2.set_xlabel("time [s]")
+        a2.legend(loc="upper right", fontsize=8)
+        return list(axes)
+
+
+def _window(t, window):
+    if window is None:
+        return slice(None)
+    a, b = np.searchsorted(t, window)
+    return slice(a, max(b, a + 1))
+
+
+def _num(x):
+    if isinstance(x, (str, bool)) or x is None:
+        return x
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _fmt(v):
+    return v if isinstance(v, str) else f"{v:.5g}"
+
+
+def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
+    d = prob.data
+    ev = prob.evaluate(th)
+    sc = prob.score([th])[0]
+    st = prob.setup(th)
+    ss = prob.sample_set
+    e = ev["residual"]
+    h = d.sample_time
+    n_tr, n_he = prob.n_train, prob.n_held
+    sse_tr = float(np.nansum(e[ss == 0] ** 2))
+    sse_he = float(np.nansum(e[ss == 1] ** 2))
+    y0_tr = float(np.sum(st["Py"][ss == 0] ** 2))
+    y0_he = float(np.sum(st["Py"][ss == 1] ** 2))
+    del sc
+    params: dict = {"gain": ev["gain"]}
+    units = {"gain": PLANT_PARAMS[model.process_type][0].unit}
+    k = 1
+    if model.process_type == "self-regulating":
+        params["tau"], units["tau"] = th.tau, "s"
+        k += 1
+    eff = model.effects
+    if "deadband" in eff:
+        params["DB"], units["DB"] = th.DB, "OP unit"
+        k += 1
+    if "stiction" in eff:
+        params["S"], params["J"] = th.S, th.J
+        units["S"] = units["J"] = "OP unit"
+        k += 2
+    if "saturation" in eff:
+        params["sat_low"], params["sat_high"] = th.sat_low, th.sat_high
+        units["sat_low"] = units["sat_high"] = "OP unit"
+        k += 2
+    if "dead_time" in eff:
+        params["dead_time"], units["dead_time"] = th.delay * h, "s"
+        k += 1
+    if "lag" in eff:
+        params["lag"], units["lag"] = th.lag, "s"
+        k += 1
+    lin = ev["lin"]
+    integ = model.process_type == "integrating"
+    derived: dict = {}
+    if prob.vcode in (KANO, HE):
+        derived["valve_model"] = prob.valve_model
+    g = ev["gain"]
+    if "bias" in eff:
+        params["bias"] = lin["bias"]
+        units["bias"] = "PV unit/s" if integ else "PV unit"
+        derived["load_offset"] = -lin["bias"] / g if g else math.nan
+        k += 1
+    if "drift" in eff:
+        # average slope of the fitted load over the scored span
+        knots = prob.knots
+        slope = lin["drift"] + sum(lin[f"drift_knot_{j + 1}"] * (0.5 - kn)
+                                   for j, kn in enumerate(knots))
+        params["drift"] = slope / prob.span
+        units["drift"] = "PV unit/s^2" if integ else "PV unit/s"
+        derived["load_drift"] = -params["drift"] / g if g else math.nan
+        derived["drift_knots"] = int(len(knots))
+        k += 1 + len(knots)
+    load = np.nan_to_num(ev["load"]) if prob.p else np.zeros(d.n)
+    if "bias" not in eff and "drift" not in eff:
+        load = np.zeros(d.n)
+    fit_he = 100.0 * (1.0 - math.sqrt(sse_he / y0_he)) if y0_he > 0 else math.nan
+    fit_tr = 100.0 * (1.0 - math.sqrt(sse_tr / y0_tr)) if y0_tr > 0 else math.nan
+    bic = n_tr * math.log(max(sse_tr, 1e-300) / n_tr) + k * math.log(n_tr)
+    return ModelFit(model=model, params=params, units=units, derived=derived, t=d.t, op=d.op,
+                    valve=ev["valve"], delayed=ev["delayed"], lagged=ev["lagged"], load=load,
+                    plant_input=ev["lagged"] - load, pv=d.pv, pv_model=ev["pv_model"],
+                    residual=e, sample_set=ss, fit_pct=fit_he, fit_pct_train=fit_tr,
+                    heldout_rmse=math.sqrt(sse_he / n_he), train_rmse=math.sqrt(sse_tr / n_tr),
+                    bic=bic, n_params=k, n_train=n_tr, n_heldout=n_he, theta=th, data=d)
+
+
+def fit_model(pv, op, sample_time, effects=(), *, process_type="integrating", sp=None,
+              **options) -> ModelFit:
+    """Prepare a record and fit one loop model (a shortcut).
+
+    Parameters
+    ----------
+    pv, op : array_like
+        Measured PV [PV unit] and controller output [OP unit].
+    sample_time : float
+        [s]
+    effects : str or tuple of str
+        Effect names.
+    process_type : {'integrating', 'self-regulating'}
+    sp : array_like, optional
+        Set point [PV unit].
+    **options
+        Passed to :func:`valvediag.workbench.prepare_loop` (``horizon``,
+        ``blocks``, ``band_max``).
+
+    Returns
+    -------
+    ModelFit
+    """
+    from .data import prepare_loop
+
+    data = prepare_loop(pv, op, sample_time, sp=sp, **options)
+    return LoopModel(effects, process_type).fit(data)

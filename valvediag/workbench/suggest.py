@@ -1,0 +1,494 @@
+"""
+Which effect is missing: evidence in the residual, then the proof by refit.
+
+For every effect not yet in the model, :func:`suggest_effects` measures the
+residual signature that its absence leaves (METHOD.md's table) *and* adds
+the effect, refits, and scores the refit on the held-out blocks. Candidates
+are ranked by held-out error (the evidence breaks near-ties and explains).
+An effect is *accepted* only when both the held-out RMSE and the BIC fall.
+
+:func:`forward_select` repeats this greedily from a starting model and
+returns the error ladder.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .data import LoopData, prepare_loop
+from .diagnosis import Diagnosis, Z99, event_average, residual_ccf, valve_breakaways
+from .effects import EFFECTS, check_effects
+from .model import LoopModel, ModelFit, _num
+
+__all__ = ["Evidence", "Suggestion", "Suggestions", "LadderStep", "ErrorLadder",
+           "effect_evidence", "suggest_effects", "forward_select", "diagnose"]
+
+#: Smallest relative fall of the held-out RMSE for an effect to be accepted.
+MIN_GAIN = 0.01
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """The residual signature of a missing effect.
+
+    Attributes
+    ----------
+    signature : str
+        What the effect's absence leaves in the residual.
+    statistic : float
+        Strength of that signature in units of its standard error (or of the
+        99 % band for correlations divided by 2.58): about 1 means nothing
+        seen, above 3 clear.
+    summary : str
+        One sentence on what was measured.
+    """
+
+    signature: str
+    statistic: float
+    summary: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready form."""
+        return {"signature": self.signature, "statistic": _num(self.statistic),
+                "summary": self.summary}
+
+
+def _segment_slopes(fit: ModelFit):
+    """Least-squares slope of the residual in every scored segment [PV/s]
+    and the segment mid-times [s]."""
+    d = fit.data
+    e = fit.residual
+    sl, tm = [], []
+    for a, b, st in zip(d.seg_start, d.seg_end, d.seg_set):
+        if st < 0:
+            continue
+        y = e[a:b]
+        t = d.t[a:b]
+        ok = np.isfinite(y)
+        if ok.sum() < 3:
+            continue
+        tc = t[ok] - t[ok].mean()
+        den = float(tc @ tc)
+        if den <= 0:
+            continue
+        sl.append(float(tc @ (y[ok] - y[ok].mean())) / den)
+        tm.append(float(t[ok].mean()))
+    return np.array(sl), np.array(tm)
+
+
+def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -> Evidence:
+    """Residual evidence that ``effect`` is missing from ``fit``.
+
+    Parameters
+    ----------
+    effect : str
+        An effect name.
+    fit : ModelFit
+        The current model.
+    diag : Diagnosis, optional
+        Its residual analysis (computed if not given).
+
+    Returns
+    -------
+    Evidence
+    """
+    d = fit.data
+    h = d.sample_time
+    e = fit.residual
+    sig = EFFECTS[effect].signature
+    if diag is None:
+        diag = fit.diagnose()
+    w = int(max(5, min(d.horizon, 0.25 * d.period / h if np.isfinite(d.period) else d.horizon)))
+    if effect == "deadband":
+        _, m, se, c = event_average(e, d.reversals, -d.reversal_sign, w // 4, w)
+        z = np.abs(m) / np.where(se > 0, se, np.inf)
+        k = int(np.nanargmax(z)) if np.isfinite(z).any() else 0
+        stat = float(np.nanmax(z)) if np.isfinite(z).any() else 0.0
+        return Evidence(sig, stat, f"signed residual over {c} OP reversals peaks at "
+                                   f"{_g(m[k])} PV {(k - w // 4) * h:.0f} s after the reversal "
+                                   f"({stat:.1f} standard errors)")
+    if effect == "stiction":
+        brk, dirn = valve_breakaways(fit.valve)
+        what = "modelled valve breakaways"
+        if brk.size < 3:
+            brk, dirn, what = d.reversals, -d.reversal_sign.astype(float), "OP reversals"
+        # change of the residual's slope across the event, signed with travel
+        lags, m, se, c = event_average(e, brk, dirn, w, w)
+        if c < 3:
+            return Evidence(sig, 0.0, f"too few {what} to average")
+        before = m[w] - m[0]
+        after = m[-1] - m[w]
+        ev = np.asarray(brk)
+        ok = (ev - w >= 0) & (ev + w < e.size)
+        X = e[ev[ok][:, None] + np.array([-w, 0, w])[None, :]] * np.asarray(dirn)[ok][:, None]
+        kink = (X[:, 2] - X[:, 1]) - (X[:, 1] - X[:, 0])
+        kink = kink[np.isfinite(kink)]
+        stat = float(abs(kink.mean()) / (kink.std(ddof=1) / math.sqrt(kink.size))) \
+            if kink.size > 2 and kink.std() > 0 else 0.0
+        return Evidence(sig, stat, f"across {c} {what} the signed residual changes by "
+                                   f"{_g(after)} PV in {w * h:.0f} s after vs {_g(before)} before "
+                                   f"({stat:.1f} standard errors)")
+    if effect == "dead_time":
+        pos = diag.ccf_lags > 0
+        r = np.abs(diag.ccf[pos]) / diag.ccf_band[pos] * Z99
+        if not r.size:
+            return Evidence(sig, 0.0, "no positive lags")
+        k = int(np.argmax(r))
+        return Evidence(sig, float(r[k]),
+                        f"residual-OP cross-correlation peaks at lag {diag.ccf_lags[pos][k]:.0f} s "
+                        f"({diag.ccf[pos][k]:+.2f}, {r[k] / Z99:.1f} times the 99 % band)")
+    if effect == "lag":
+        du = np.r_[0.0, np.diff(fit.op)]
+        L = int(max(5, min(d.horizon, 0.25 * d.period / h if np.isfinite(d.period) else 20)))
+        lags, c, band = residual_ccf(fit, L, signal=du)
+        pos = lags >= 0
+        r = np.abs(c[pos]) / band[pos] * Z99
+        k = int(np.argmax(r))
+        return Evidence(sig, float(r[k]),
+                        f"residual vs OP rate cross-correlation {c[pos][k]:+.2f} at lag "
+                        f"{lags[pos][k] * h:.0f} s ({r[k] / Z99:.1f} times the 99 % band)")
+    if effect in ("bias", "drift"):
+        sl, tm = _segment_slopes(fit)
+        if sl.size < 3:
+            return Evidence(sig, 0.0, "too few segments")
+        if effect == "bias":
+            stat = float(abs(sl.mean()) / (sl.std(ddof=1) / math.sqrt(sl.size))) if sl.std() > 0 else 0.0
+            return Evidence(sig, stat, f"mean rate error {_g(sl.mean())} PV/s over {sl.size} "
+                                       f"segments ({stat:.1f} standard errors)")
+        tc = tm - tm.mean()
+        b = float(tc @ (sl - sl.mean()) / (tc @ tc))
+        res = sl - sl.mean() - b * tc
+        se = math.sqrt(float(res @ res) / max(sl.size - 2, 1) / float(tc @ tc))
+        stat = abs(b) / se if se > 0 else 0.0
+        # slow wander: lag-1 correlation of the segment rate errors
+        r1 = float(np.corrcoef(sl[:-1], sl[1:])[0, 1]) if sl.size > 3 and sl.std() > 0 else 0.0
+        return Evidence(sig, float(max(stat, r1 * math.sqrt(sl.size))),
+                        f"rate error changes by {_g(b * 3600)} PV/s per hour ({stat:.1f} "
+                        f"standard errors); neighbouring segments correlate {r1:+.2f}")
+    if effect == "saturation":
+        lo, hi = np.percentile(d.op, [0.5, 99.5])
+        span = hi - lo
+        at = ((d.op <= lo + 0.03 * span) | (d.op >= hi - 0.03 * span)) & np.isfinite(e)
+        rest = ~at & np.isfinite(e)
+        if at.sum() < 5 or rest.sum() < 5:
+            return Evidence(sig, 0.0, "the OP hardly reaches its extremes")
+        a2, b2 = e[at] ** 2, e[rest] ** 2
+        ratio = math.sqrt(a2.mean() / b2.mean()) if b2.mean() > 0 else math.inf
+        stat = (a2.mean() - b2.mean()) / math.sqrt(a2.var() / a2.size + b2.var() / b2.size) \
+            if a2.var() + b2.var() > 0 else 0.0
+        return Evidence(sig, float(max(stat, 0.0)),
+                        f"residual RMS near the OP extremes is {ratio:.2f} times the rest "
+                        f"({a2.size} samples)")
+    raise ValueError(f"unknown effect {effect!r}")
+
+
+def _g(x):
+    return f"{x:+.3g}" if np.isfinite(x) else "nan"
+
+
+@dataclass(frozen=True)
+class Suggestion:
+    """One candidate effect, refitted and scored.
+
+    Attributes
+    ----------
+    effect : str
+    params : dict
+        Parameters of the refitted model (the new effect's included).
+    fit_pct, heldout_rmse, bic : float
+        Scores of the refitted model.
+    evidence : Evidence
+        The residual signature in the current model.
+    accepted : bool
+        Held-out RMSE fell by at least :data:`MIN_GAIN` and BIC fell.
+    gain : float
+        Relative fall of the held-out RMSE, ``1 - new/base``.
+    fit : ModelFit
+    """
+
+    effect: str
+    params: dict
+    fit_pct: float
+    heldout_rmse: float
+    bic: float
+    evidence: Evidence
+    accepted: bool
+    gain: float
+    fit: ModelFit = field(repr=False)
+
+    def to_dict(self) -> dict:
+        """JSON-ready form (NaN as None)."""
+        ev = self.evidence.to_dict()
+        ev["accepted"] = bool(self.accepted)
+        ev["heldout_gain_pct"] = _num(100 * self.gain)
+        return {"effect": self.effect, "params": {k: _num(v) for k, v in self.params.items()},
+                "fit_pct": _num(self.fit_pct), "heldout_rmse": _num(self.heldout_rmse),
+                "bic": _num(self.bic), "evidence": ev}
+
+
+@dataclass(frozen=True)
+class Suggestions:
+    """Candidate effects for one model, best first.
+
+    Attributes
+    ----------
+    base : ModelFit
+    diagnosis : Diagnosis
+        Where the base model fails.
+    items : tuple of Suggestion
+        Best first.
+    """
+
+    base: ModelFit = field(repr=False)
+    diagnosis: Diagnosis = field(repr=False)
+    items: tuple[Suggestion, ...]
+
+    @property
+    def best(self) -> Suggestion | None:
+        """The first accepted suggestion, or None."""
+        for s in self.items:
+            if s.accepted:
+                return s
+        return None
+
+    def to_dict(self) -> dict:
+        """``{"base": {...}, "suggestions": [...]}`` (NaN as None)."""
+        return {"base": self.base.to_dict(), "suggestions": [s.to_dict() for s in self.items]}
+
+    def table(self) -> str:
+        """A plain-text table."""
+        b = self.base
+        rows = [f"{'model':34s} {'fit %':>7s} {'held-out RMSE':>14s} {'BIC':>11s}  evidence",
+                f"{b.model.name:34s} {b.fit_pct:7.1f} {b.heldout_rmse:14.4g} {b.bic:11.1f}  (base)"]
+        for s in self.items:
+            mark = "accepted" if s.accepted else "rejected"
+            rows.append(f"{'+ ' + s.effect:34s} {s.fit_pct:7.1f} {s.heldout_rmse:14.4g} "
+                        f"{s.bic:11.1f}  {mark}; {s.evidence.summary}")
+        return "\n".join(rows)
+
+    def plot(self, ax=None):
+        """Held-out RMSE of each candidate against the base model.
+
+        Parameters
+        ----------
+        ax : matplotlib.axes.Axes, optional
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(6, 0.4 * len(self.items) + 1.2))
+        names = [f"+ {s.effect}" for s in self.items][::-1]
+        vals = [s.heldout_rmse for s in self.items][::-1]
+        cols = ["C2" if s.accepted else "0.6" for s in self.items][::-1]
+        ax.barh(names, vals, color=cols)
+        ax.axvline(self.base.heldout_rmse, color="C3", lw=1, ls="--",
+                   label=f"base: {self.base.model.name}")
+        ax.set_xlabel("held-out RMSE [PV] (green: accepted)")
+        ax.legend(loc="lower right", fontsize=8)
+        return ax
+
+
+def suggest_effects(base: ModelFit, candidates=None) -> Suggestions:
+    """Rank the effects missing from a fitted model.
+
+    Parameters
+    ----------
+    base : ModelFit
+    candidates : iterable of str, optional
+        Effects to try; default every effect not in the model.
+
+    Returns
+    -------
+    Suggestions
+
+    Notes
+    -----
+    Each candidate is added, the whole model refitted (warm-started from
+    ``base``) and scored on the held-out blocks. Ranking: held-out RMSE,
+    where two candidates are within 0.5 % of each other the stronger
+    residual evidence first. An effect is accepted when the held-out RMSE
+    falls by at least :data:`MIN_GAIN` and the BIC falls too (the BIC counts
+    the grid-searched parameters).
+    """
+    data = base.data
+    diag = base.diagnose()
+    cands = base.model.candidates() if candidates is None else check_effects(candidates)
+    items = []
+    for eff in cands:
+        if eff in base.effects:
+            continue
+        ev = effect_evidence(eff, base, diag)
+        f = base.model.add(eff).fit(data, start=base)
+        gain = 1.0 - f.heldout_rmse / base.heldout_rmse if base.heldout_rmse > 0 else 0.0
+        acc = bool(gain >= MIN_GAIN and f.bic < base.bic)
+        items.append(Suggestion(effect=eff, params=dict(f.params), fit_pct=f.fit_pct,
+                                heldout_rmse=f.heldout_rmse, bic=f.bic, evidence=ev,
+                                accepted=acc, gain=gain, fit=f))
+    ref = base.heldout_rmse if base.heldout_rmse > 0 else 1.0
+    items.sort(key=lambda s: (not s.accepted, round(s.heldout_rmse / ref / 0.005),
+                              -np.nan_to_num(s.evidence.statistic)))
+    return Suggestions(base=base, diagnosis=diag, items=tuple(items))
+
+
+@dataclass(frozen=True)
+class LadderStep:
+    """One rung of the error ladder.
+
+    Attributes
+    ----------
+    added : str or None
+        The effect added at this step (None for the start).
+    fit : ModelFit
+    suggestions : Suggestions or None
+        The candidates tried from this step (None for the last step when
+        the search was not run from it).
+    """
+
+    added: str | None
+    fit: ModelFit = field(repr=False)
+    suggestions: Suggestions | None = field(repr=False, default=None)
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        """Effects of the model at this step."""
+        return self.fit.effects
+
+
+@dataclass(frozen=True)
+class ErrorLadder:
+    """Greedy forward selection: the model, step by step, and its errors.
+
+    Attributes
+    ----------
+    steps : tuple of LadderStep
+        From the starting model to the final one.
+    """
+
+    steps: tuple[LadderStep, ...]
+
+    @property
+    def first(self) -> ModelFit:
+        """The starting model's fit."""
+        return self.steps[0].fit
+
+    @property
+    def final(self) -> ModelFit:
+        """The selected model's fit."""
+        return self.steps[-1].fit
+
+    def rows(self) -> list[dict]:
+        """One dict per step: model, effects, added, params, fit_pct,
+        heldout_rmse, bic, n_params."""
+        out = []
+        for s in self.steps:
+            f = s.fit
+            out.append({"model": f.model.name, "effects": list(f.effects), "added": s.added,
+                        "params": dict(f.params), "fit_pct": f.fit_pct,
+                        "heldout_rmse": f.heldout_rmse, "bic": f.bic, "n_params": f.n_params})
+        return out
+
+    def table(self) -> str:
+        """A plain-text table."""
+        lines = [f"{'step':4s} {'model':40s} {'k':>3s} {'fit %':>7s} {'held-out RMSE':>14s} "
+                 f"{'BIC':>11s}  parameters"]
+        for i, r in enumerate(self.rows()):
+            ps = ", ".join(f"{k}={v:.4g}" for k, v in r["params"].items())
+            lines.append(f"{i:<4d} {r['model']:40s} {r['n_params']:3d} {r['fit_pct']:7.1f} "
+                         f"{r['heldout_rmse']:14.4g} {r['bic']:11.1f}  {ps}")
+        return "\n".join(lines)
+
+    def plot(self, ax=None):
+        """Held-out RMSE and fit % per step.
+
+        Parameters
+        ----------
+        ax : matplotlib.axes.Axes, optional
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(6, 3))
+        rows = self.rows()
+        x = np.arange(len(rows))
+        labels = [r["model"] if r["added"] is None else f"+ {r['added']}" for r in rows]
+        ax.plot(x, [r["heldout_rmse"] for r in rows], "o-", color="C3", label="held-out RMSE")
+        ax.set_xticks(x)
+        ax.set_xticklabels(labels, rotation=20, ha="right", fontsize=8)
+        ax.set_ylabel("held-out RMSE [PV]")
+        ax.set_ylim(bottom=0)
+        ax2 = ax.twinx()
+        ax2.plot(x, [r["fit_pct"] for r in rows], "s--", color="C0", label="fit %")
+        ax2.set_ylabel("fit [%]")
+        lines = ax.get_lines() + ax2.get_lines()
+        ax.legend(lines, [ln.get_label() for ln in lines], loc="center right", fontsize=8)
+        ax.set_title("error ladder", fontsize=9)
+        return ax
+
+
+def forward_select(data: LoopData, start=(), *, process_type: str = "integrating",
+                   max_steps: int | None = None, start_fit: ModelFit | None = None) -> ErrorLadder:
+    """Greedy forward selection of effects from a starting model.
+
+    Parameters
+    ----------
+    data : LoopData
+    start : str or tuple of str
+        Starting effects.
+    process_type : {'integrating', 'self-regulating'}
+    max_steps : int, optional
+        Most effects added.
+    start_fit : ModelFit, optional
+        An already fitted starting model (skips its fit).
+
+    Returns
+    -------
+    ErrorLadder
+        Stops when no candidate is accepted.
+    """
+    fit = start_fit if start_fit is not None else LoopModel(start, process_type).fit(data)
+    steps = []
+    added = None
+    while True:
+        sug = suggest_effects(fit)
+        steps.append(LadderStep(added=added, fit=fit, suggestions=sug))
+        best = sug.best
+        if best is None or (max_steps is not None and len(steps) - 1 >= max_steps):
+            break
+        fit, added = best.fit, best.effect
+    return ErrorLadder(steps=tuple(steps))
+
+
+def diagnose(pv, op, sample_time, effects=(), *, process_type: str = "integrating", sp=None,
+             **options) -> Suggestions:
+    """Fit a starting model and rank the effects missing from it.
+
+    Parameters
+    ----------
+    pv, op : array_like
+        Measured PV [PV unit] and controller output [OP unit].
+    sample_time : float
+        [s]
+    effects : str or tuple of str
+        Starting model (default: the plant alone).
+    process_type : {'integrating', 'self-regulating'}
+    sp : array_like, optional
+        Set point [PV unit].
+    **options
+        Passed to :func:`valvediag.workbench.prepare_loop`.
+
+    Returns
+    -------
+    Suggestions
+    """
+    data = prepare_loop(pv, op, sample_time, sp=sp, **options)
+    return suggest_effects(LoopModel(effects, process_type).fit(data))
