@@ -44,7 +44,7 @@ from valvediag.outputs import write_outputs
 from valvediag.registry import LoopSpec, read_loops_csv
 from valvediag.scan import (LoopJob, LoopResult, ScanConfig, analyse_loop, load_loop_frames,
                             persist_results, plan_loops, rank_results)
-from valvediag.store import FAULT_VERDICTS, VERDICTS, Store, StoreLockedError
+from valvediag.store import VERDICTS, Store, StoreLockedError
 
 __all__ = ["nightly_scan", "progress_to", "FLOW_NAME", "TABLE_ARTIFACT_KEY",
            "REPORT_ARTIFACT_KEY", "TABLE_ARTIFACT_MAX_ROWS"]
@@ -181,11 +181,8 @@ def persist(db: str, run_id: str, ranked: list[LoopResult]) -> list[str]:
     and it was not one in the latest complete run before this one.
     """
     with Store(db) as store:
-        previous = store.verdicts()      # latest complete run; this one is still running
         persist_results(store, run_id, ranked)
-    before = dict(zip(previous["loop"].to_list(), previous["verdict"].to_list()))
-    new = [r.loop for r in ranked
-           if r.verdict in FAULT_VERDICTS and before.get(r.loop) not in FAULT_VERDICTS]
+        new = store.new_faults(run_id)["loop"].to_list()
     get_run_logger().info("stored %d verdicts of run %s; new faults: %s", len(ranked), run_id,
                           ", ".join(new) or "none")
     return new

@@ -384,3 +384,19 @@ def test_grid_is_in_phase_with_the_pv_samples():
     # samples fall on the apices (t = 60 + 120 k); a grid 2 s off would cut each apex
     # by 2 s of a 1/30 per s ramp, to about 0.93
     assert r.amplitude == pytest.approx(1.0, abs=0.01)
+
+
+def test_a_loop_whose_analysis_fails_gets_insufficient_data(monkeypatch):
+    """An unexpected error in one loop's numerics must not stop the plant's scan."""
+    import valvediag.scan as scan_mod
+
+    def boom(job, frames, config):
+        raise FloatingPointError("synthetic failure")
+
+    monkeypatch.setattr(scan_mod, "_analyse_loop", boom)
+    spec = LoopSpec(loop="LIC999", pv_tag="LIC999.PV", op_tag="LIC999.OP")
+    start = dt.datetime(2026, 11, 1, tzinfo=dt.timezone.utc)
+    job = scan_mod.LoopJob(spec=spec, start=start, end=start + dt.timedelta(hours=1), problems=())
+    res = scan_mod.analyse_loop(job, {}, scan_mod.ScanConfig())
+    assert res.verdict == "insufficient-data"
+    assert "analysis failed (FloatingPointError: synthetic failure)" in res.reason

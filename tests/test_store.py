@@ -47,7 +47,7 @@ def test_schema_has_every_table_and_survives_reopen(tmp_path):
 
 def test_every_named_query_file_is_loadable():
     names = sorted(p.stem for p in SQL_DIR.glob("*.sql"))
-    assert "schema" in names and "new_since_last_run" in names
+    assert "schema" in names and "new_faults_of_run" in names
     for name in names:
         assert load_sql(name).strip()
     with pytest.raises(KeyError, match="no named query 'nope'"):

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+from scipy.fft import irfft, next_fast_len, rfft
 
 __all__ = ["Oscillation", "detect_oscillation", "acf_period", "acf_regularity"]
 
@@ -231,8 +232,9 @@ def acf_period(x, max_lag=None):
     n = y.size
     if n < 8 or not np.any(y):
         return np.nan, 0.0
-    f = np.fft.rfft(y, 2 * n)
-    ac = np.fft.irfft(f * np.conj(f))[:n]
+    m = next_fast_len(2 * n, real=True)   # awkward lengths make the FFT 10-30x slower
+    f = rfft(y, m)
+    ac = irfft(f * np.conj(f), m)[:n]
     ac /= ac[0]
     max_lag = n // 2 if max_lag is None else min(int(max_lag), n - 2)
     neg = np.flatnonzero(ac[:max_lag] < 0)
@@ -281,8 +283,9 @@ def acf_regularity(x, max_crossings: int = 12):
     n = y.size
     if n < 8 or not np.any(y):
         return 0.0
-    f = np.fft.rfft(y, 2 * n)
-    ac = np.fft.irfft(f * np.conj(f))[: n // 2]
+    m = next_fast_len(2 * n, real=True)
+    f = rfft(y, m)
+    ac = irfft(f * np.conj(f), m)[: n // 2]
     ac /= ac[0]
     sgn = np.signbit(ac)
     idx = np.flatnonzero(sgn[1:] != sgn[:-1])[:max_crossings]

@@ -72,6 +72,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import logging
 import math
 import os
 import time
@@ -133,6 +134,8 @@ _UTC = dt.timezone.utc
 
 
 # ----------------------------------------------------------------- contracts
+
+_log = logging.getLogger(__name__)
 
 def _aware(value: dt.datetime | None, what: str) -> dt.datetime | None:
     if value is None:
@@ -756,8 +759,20 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     The classifier analyses one gap-free segment at a time, so a day split by
     gaps is analysed in pieces; an oscillation that occupies less than about
     a third of a segment may be missed by the segment's classification (the
-    block screen only splits segments found oscillating).
+    block screen only splits segments found oscillating). An unexpected error
+    in the analysis gives the loop ``insufficient-data`` with the error as its
+    reason (and logs the traceback) rather than stopping the scan.
     """
+    try:
+        return _analyse_loop(job, frames, config)
+    except Exception as exc:   # one loop's failure must not stop the plant's scan
+        _log.exception("analysis of loop %s failed", job.spec.loop)
+        return _insufficient(job, f"analysis failed ({type(exc).__name__}: {exc}); "
+                                  "please report this with the loop's data", frames=frames)
+
+
+def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
+                  config: ScanConfig) -> LoopResult:
     spec = job.spec
     why = _check_frames(job, frames)
     if why is not None:

@@ -202,7 +202,7 @@ class Store:
         Parameters
         ----------
         name : str
-            File stem in ``sql/``, e.g. ``"new_since_last_run"``.
+            File stem in ``sql/``, e.g. ``"new_faults_of_run"``.
         **params
             Values of the query's ``$name`` parameters (exactly those it uses).
         """
@@ -552,12 +552,20 @@ class Store:
         """
         return self.query("verdict_history", loop=loop)
 
-    def new_since_last_run(self) -> pl.DataFrame:
-        """Loops that turned faulty in the latest complete run.
+    def new_faults(self, run_id: str) -> pl.DataFrame:
+        """Loops that are faulty in run ``run_id`` and were not in the latest
+        complete run before it.
 
-        A loop is listed when its verdict in the latest complete run is one of
+        A loop is listed when its verdict in ``run_id`` is one of
         :data:`FAULT_VERDICTS` and in the previous complete run it was not (or
-        the loop was absent, or there is no previous complete run).
+        the loop was absent, or there is no earlier complete run). The run
+        itself may still be running.
         """
-        return self.query("new_since_last_run")
+        return self.query("new_faults_of_run", run_id=run_id)
+
+    def new_since_last_run(self) -> pl.DataFrame:
+        """Loops that turned faulty in the latest complete run (see
+        :meth:`new_faults`)."""
+        last = self.query("run_latest_complete")["run_id"].to_list()
+        return self.new_faults(last[0] if last else "")
 

@@ -1,0 +1,26 @@
+-- Loops whose verdict in run $run_id is a fault and was not a fault in the latest complete
+-- run before it (a loop absent from that run, or no earlier complete run, counts as new).
+-- Works while $run_id is still running, so the nightly flow can report it before closing.
+WITH this_run AS (
+    SELECT started_at FROM runs WHERE run_id = $run_id
+),
+previous_run AS (
+    SELECT r.run_id
+    FROM runs AS r, this_run AS t
+    WHERE r.status = 'complete' AND r.run_id <> $run_id AND r.started_at <= t.started_at
+    ORDER BY r.started_at DESC, r.run_id DESC
+    LIMIT 1
+),
+current_verdicts AS (
+    SELECT * FROM verdicts WHERE run_id = $run_id
+),
+previous AS (
+    SELECT v.loop, v.verdict FROM verdicts AS v JOIN previous_run USING (run_id)
+)
+SELECT c.run_id, c.loop, c.verdict, c.confidence, c.rank, c.severity, c.bi, c.reason,
+       p.verdict AS previous_verdict
+FROM current_verdicts AS c
+LEFT JOIN previous AS p USING (loop)
+WHERE c.verdict IN ('stiction', 'backlash', 'linear-oscillation')
+  AND (p.verdict IS NULL OR p.verdict NOT IN ('stiction', 'backlash', 'linear-oscillation'))
+ORDER BY c.rank NULLS LAST, c.loop
