@@ -13,7 +13,7 @@ import sys
 from .. import __version__
 
 #: Command modules, in the order ``--help`` lists them.
-COMMANDS = ("bi", "reproduce", "synth", "scan")
+COMMANDS = ("bi", "reproduce", "synth", "scan", "model")
 
 
 class CommandError(Exception):

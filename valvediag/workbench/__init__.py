@@ -1,8 +1,56 @@
-"""Model workbench (provisional init)."""
+"""
+Model workbench: compare a physical loop model with the measurements, see
+where it fails, learn which physical effect is missing, add it and watch the
+error fall.
+
+The loop model is a chain of named, swappable effects (as pvlib's
+``ModelChain``), driven by the measured OP and predicting the PV::
+
+    OP -> valve (deadband | stiction, saturation) -> dead_time -> lag
+       -> plant input minus load (bias, drift) -> plant (integrating or
+          self-regulating) -> PV
+
+Typical use::
+
+    >>> from valvediag.workbench import prepare_loop, LoopModel, suggest_effects
+    >>> data = prepare_loop(pv, op, sample_time=1.0)
+    >>> fit = LoopModel(("deadband",)).fit(data)       # ModelFit, .plot(), .plot_chain()
+    >>> fit.diagnose().plot("ccf")                      # where it fails (Diagnosis)
+    >>> sug = suggest_effects(fit)                      # which effect is missing
+    >>> print(sug.table()); sug.best.effect
+    >>> ladder = forward_select(data, ("deadband",))    # add, refit, repeat
+    >>> ladder.plot(); print(ladder.table())
+
+The PV prediction is a free simulation re-initialised every ``horizon``
+samples (to the best initial state of each segment), fitted on alternating
+training blocks and scored on held-out blocks. For the nightly scan,
+:func:`estimate_valve_size` sizes a valve fault (dead band, or S and J).
+
+References
+----------
+.. [1] Kano, M., Maruta, H., Kugemoto, H., Shimizu, K. (2004). Practical model
+   and detection algorithm for valve stiction. IFAC DYCOPS 7, Boston.
+.. [2] Choudhury, M. A. A. S., Thornhill, N. F., Shah, S. L. (2005).
+   Modelling valve stiction. Control Engineering Practice 13, 641-658.
+.. [3] He, Q. P., Wang, J., Pottmann, M., Qin, S. J. (2007). A curve fitting
+   method for detecting valve stiction in oscillating control loops.
+   Ind. Eng. Chem. Res. 46, 4549-4560.
+.. [4] Hägglund, T. (2007). Automatic on-line estimation of backlash in
+   control loops. Journal of Process Control 17, 489-499.
+.. [5] Ljung, L. (1999). System Identification: Theory for the User, 2nd ed.
+   Prentice Hall (residual analysis, sec. 16.6).
+"""
 from .data import LoopData, WorkbenchDataError, prepare_loop
-from .diagnosis import Diagnosis, diagnose_fit
-from .effects import EFFECTS, EFFECT_NAMES
+from .diagnosis import Diagnosis, WorstSegment, diagnose_fit
+from .effects import EFFECT_NAMES, EFFECTS, PLANT_PARAMS, Effect, Param, check_effects
 from .fit import Theta
 from .model import LoopModel, ModelFit, fit_model
-from .suggest import ErrorLadder, Suggestions, diagnose, forward_select, suggest_effects
 from .size import estimate_valve_size
+from .suggest import (ErrorLadder, Evidence, LadderStep, Suggestion, Suggestions, diagnose,
+                      effect_evidence, forward_select, suggest_effects)
+
+__all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "Diagnosis", "WorstSegment",
+           "diagnose_fit", "EFFECTS", "EFFECT_NAMES", "PLANT_PARAMS", "Effect", "Param",
+           "check_effects", "Theta", "LoopModel", "ModelFit", "fit_model",
+           "estimate_valve_size", "ErrorLadder", "Evidence", "LadderStep", "Suggestion",
+           "Suggestions", "diagnose", "effect_evidence", "forward_select", "suggest_effects"]

@@ -209,8 +209,10 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     Missing OP samples are held (so the valve chain can run) and every
     segment that contains a missing PV or OP sample is left out of fit and
     score. The first samples, until the OP has reversed and then travelled
-    ``band_max``, are not scored: there the valve state depends on its unknown
-    initial position (METHOD.md pitfalls). The data are never resampled.
+    ``band_max`` (or the 75th percentile OP swing if smaller), plus half a
+    period, are not scored: there the valve state (and a lag fed by it)
+    depends on the unknown initial position (METHOD.md pitfalls). The data
+    are never resampled.
     """
     h = float(sample_time)
     if not np.isfinite(h) or h <= 0:
@@ -257,11 +259,14 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     band_max = float(band_max)
     # burn-in: OP has reversed and moved band_max since (valve state known)
     # (the first extreme only fixes the direction; the second is a reversal),
-    # plus the longest dead time searched, so the delay line is filled
-    _, _, bconf = turning_points(op, max(band_max, delta))
+    # plus half a period: the longest dead time searched fills the delay line
+    # and a lag forgets the unknown valve position of the start
+    # (a valve band wider than most OP swings would hardly ever move: the
+    # hysteresis is the smaller of band_max and the 75th percentile swing)
+    _, _, bconf = turning_points(op, max(min(band_max, float(np.percentile(swing, 75))), delta))
     burn = int(bconf[1]) if bconf.size >= 2 else int(conf[1])
     P = period if np.isfinite(period) else 0.1 * n * h
-    burn += int(max(5, min(round(0.3 * P / h), 300)))
+    burn += int(max(5, min(round(0.5 * P / h), 600)))
     if horizon == "auto":
         H = int(round(0.25 * period / h)) if np.isfinite(period) else 30
         H = max(30, min(H, 600, (n - burn) // 12))

@@ -41,7 +41,8 @@ class WorstSegment:
     labels : tuple of str
         What happens there: ``'after OP reversal'``, ``'after valve
         breakaway'``, ``'at OP limit'``, ``'during set-point change'``,
-        ``'during drift'`` (the residual ramps steadily), or ``'no pattern'``.
+        ``'during drift'`` (the OP averaged over a period moves by more than
+        a quarter of a typical swing nearby), or ``'no pattern'``.
     heldout : bool
         True for a held-out segment.
     """
@@ -364,7 +365,17 @@ def valve_breakaways(valve, min_rest: int = 2):
     return start + 1, np.sign(dx[start])
 
 
-def _labels(fit, a, b, e_seg, rev, brk, op_lo, op_hi, sp):
+def _op_trend(op, width):
+    """Moving average of the OP over ``width`` samples (one period)."""
+    w = int(max(1, width))
+    c = np.r_[0.0, np.cumsum(op)]
+    n = op.size
+    lo = np.clip(np.arange(n) - w // 2, 0, n)
+    hi = np.clip(np.arange(n) + w - w // 2, 0, n)
+    return (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
+
+
+def _labels(fit, a, b, e_seg, rev, brk, op_lo, op_hi, sp, trend, swing):
     H = b - a
     lab = []
     if np.any((rev >= a - H // 2) & (rev < b)):
@@ -379,12 +390,11 @@ def _labels(fit, a, b, e_seg, rev, brk, op_lo, op_hi, sp):
         s = s[np.isfinite(s)]
         if s.size > 1 and np.ptp(s) > 0:
             lab.append("during set-point change")
-    ok = np.isfinite(e_seg)
-    if ok.sum() > 5:
-        j = np.flatnonzero(ok)
-        c = np.corrcoef(j, e_seg[ok])[0, 1] if np.std(e_seg[ok]) > 0 else 0.0
-        if c * c > 0.8:
-            lab.append("during drift")
+    # the operating point moves: the OP averaged over a period shifts by a
+    # quarter of a typical swing within the segment (or the two around it)
+    lo_, hi_ = max(a - H, 0), min(b + H, trend.size) - 1
+    if swing > 0 and abs(trend[hi_] - trend[lo_]) > 0.25 * swing:
+        lab.append("during drift")
     return tuple(lab) or ("no pattern",)
 
 
@@ -431,6 +441,10 @@ def diagnose_fit(fit, *, n_worst: int = 5, max_lag=None) -> Diagnosis:
     span = hi - lo
     op_lo, op_hi = lo + 0.02 * span, hi - 0.02 * span
     brk, _ = valve_breakaways(fit.valve)
+    per = d.period / h if np.isfinite(d.period) else 4 * d.horizon
+    trend = _op_trend(d.op, per)
+    sw = np.abs(np.diff(d.op[d.reversals])) if d.reversals.size > 1 else np.array([span])
+    swing = float(np.median(sw))
     seg_rms = []
     for j, (a, b, st) in enumerate(zip(d.seg_start, d.seg_end, d.seg_set)):
         if st < 0:
@@ -443,7 +457,7 @@ def diagnose_fit(fit, *, n_worst: int = 5, max_lag=None) -> Diagnosis:
         worst.append(WorstSegment(start=float(d.t[a]), end=float(d.t[b - 1]), rms=r,
                                   ratio=r / rms if rms > 0 else math.nan,
                                   labels=_labels(fit, a, b, e[a:b], d.reversals, brk, op_lo,
-                                                 op_hi, d.sp),
+                                                 op_hi, d.sp, trend, swing),
                                   heldout=bool(d.seg_set[j] == 1)))
     al, acf, aband = residual_acf(fit, min(L, d.horizon))
     cl, ccf, cband = residual_ccf(fit, L)

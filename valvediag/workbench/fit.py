@@ -66,7 +66,17 @@ class Theta:
     phase: float = 0.0
 
     def replace(self, **kw) -> "Theta":
-        """Copy with some fields changed."""
+        """Copy with some fields changed.
+
+        Parameters
+        ----------
+        **kw : float
+            New values by field name.
+
+        Returns
+        -------
+        Theta
+        """
         d = dict(self.__dict__)
         d.update(kw)
         return Theta(**d)
@@ -587,40 +597,67 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
         for a in ax:
             if "sat_low" in a[0]:
                 best, fb, _, _ = _best(prob, [best.replace(**x) for x in a], current=best)
-    if prob.vcode in (KANO, HE):
+    if prob.vcode == KANO:
         best = _cliff_guard(prob, best, fb)
     return best
 
 
-#: Relative training error allowed when backing the stick band off its cliff.
-CLIFF_TOL = 0.10
+#: Where to place the stick band inside the interval of equal training error,
+#: from its low end (0) to its high end (1).
+FLAT_POSITION = 0.3
 
 
 def _cliff_guard(prob: Problem, theta: Theta, f_best: float) -> Theta:
-    """Back the stick band ``S`` off the cliff of the error surface.
+    """Place the stick band ``S`` inside its interval of equal training error.
 
-    In a stick-slip limit cycle the valve slips on the first sample where
-    the OP has moved ``S``, so the excess is at most one OP step. A model
-    ``S`` a hair above the true one misses a slip whenever an event's excess
-    is smaller than that hair, and its prediction then diverges for the rest
-    of the segment; below the true ``S`` the model slips a sample early, a
-    small error. The training optimum lies on the flat top right at the
-    cliff's edge (held-out events may have smaller excesses), so we take the
-    smallest ``S`` within two median OP steps below it whose training error
-    is within :data:`CLIFF_TOL` of the best.
+    With ``S - J`` fixed (the valve's offset while moving), the valve output
+    depends on ``S`` only through the samples at which it slips, so the
+    training error is piecewise constant in ``S``. In a stick-slip limit
+    cycle the controller often reverses the OP on the sample after the
+    slip, so a model ``S`` a hair above the true one misses that slip
+    altogether and its prediction diverges until the next reversal; a hair
+    below, it slips a sample early, a small error. The optimiser stops
+    anywhere on the optimal interval, often right at its upper edge, where a
+    held-out event with a smaller excess is missed. We find the interval's
+    ends (bisection, within two median OP steps) and place ``S`` at
+    :data:`FLAT_POSITION` of it, nearer its lower end.
     """
     if theta.S <= 0:
         return theta
     step = float(np.median(np.abs(np.diff(prob.data.op))))
     if not step > 0:
         return theta
-    cands = []
-    for k in range(0, 9):
-        S = max(theta.S - 0.25 * k * step, 1e-9)
-        cands.append(theta.replace(S=S, J=min(theta.J, S)))
-    sc = prob.score(cands)[:, 0]
-    ok = np.flatnonzero(sc <= f_best * (1.0 + CLIFF_TOL))
-    return cands[int(ok.max())] if ok.size else theta
+    c = theta.S - theta.J
+    f0 = float(prob.score([theta])[0, 0])
+
+    def at(S):
+        return theta.replace(S=float(S), J=float(max(S - c, 0.0)))
+
+    def same(v):
+        return abs(v - f0) <= 1e-9 * max(abs(f0), 1e-300)
+
+    def edge(direction):
+        lim = theta.S + direction * 2.0 * step
+        if direction < 0:
+            lim = max(lim, c, 0.0)
+        pts = theta.S + (lim - theta.S) * np.arange(1, 9) / 8
+        sc = prob.score([at(x) for x in pts])[:, 0]
+        bad = [k for k in range(pts.size) if not same(sc[k])]
+        if not bad:
+            return float(pts[-1])
+        k = bad[0]
+        inside, outside = (theta.S if k == 0 else float(pts[k - 1])), float(pts[k])
+        for _ in range(6):
+            mid = 0.5 * (inside + outside)
+            if same(prob.score([at(mid)])[0, 0]):
+                inside = mid
+            else:
+                outside = mid
+        return inside
+
+    hi = edge(+1)
+    lo = edge(-1)
+    return at(lo + FLAT_POSITION * (hi - lo))
 
 
 def prob_clip(prob: Problem, theta: Theta) -> Theta:

@@ -114,6 +114,24 @@ class LoopModel:
         return tuple(e for e in EFFECTS if e not in self.effects
                      and not (e == "deadband" and "stiction" in self.effects))
 
+    def evaluate(self, data: LoopData, theta: Theta) -> "ModelFit":
+        """The model at given searched parameters (linear ones solved), no search.
+
+        Parameters
+        ----------
+        data : LoopData
+        theta : Theta
+            Searched parameters; fields of effects not in the model are
+            ignored.
+
+        Returns
+        -------
+        ModelFit
+        """
+        vm = self.valve_model if "stiction" in self.effects else "kano"
+        prob = Problem(data, self.effects, self.process_type, self.drift_knots, vm)
+        return _result(self, prob, theta)
+
     def fit(self, data: LoopData, *, start=None) -> "ModelFit":
         """Fit the model to prepared data.
 
@@ -179,8 +197,8 @@ class ModelFit:
         0 training, 1 held-out, -1 not scored.
     fit_pct : float
         Held-out fit ``100 (1 - |e| / |y0|)`` [%], ``y0`` the PV with each
-        segment's free response removed (the error of a model that predicts
-        no change).
+        segment's mean removed (the error of a model that predicts a
+        constant PV per segment), as MATLAB's ``compare`` but per segment.
     fit_pct_train : float
         The same on the training blocks [%].
     heldout_rmse, train_rmse : float
@@ -248,8 +266,8 @@ class ModelFit:
 
         Parameters
         ----------
-        **kw
-            Passed on.
+        **kw : dict
+            Passed on (``n_worst``, ``max_lag``).
 
         Returns
         -------
@@ -286,6 +304,8 @@ class ModelFit:
                     label=f"{other.model.name}: fit {other.fit_pct:.1f} %")
         ax.plot(self.t[sl], self.pv_model[sl], color="C0", lw=1.0,
                 label=f"{self.model.name}: fit {self.fit_pct:.1f} %")
+        if window is not None:
+            ax.set_xlim(*window)
         ax.set_xlabel("time [s]")
         ax.set_ylabel("PV")
         ax.legend(loc="upper right", fontsize=8)
@@ -331,6 +351,8 @@ class ModelFit:
         a2.set_ylabel("PV")
         a2.set_xlabel("time [s]")
         a2.legend(loc="upper right", fontsize=8)
+        if window is not None:
+            a2.set_xlim(*window)
         return list(axes)
 
 
@@ -352,6 +374,22 @@ def _fmt(v):
     return v if isinstance(v, str) else f"{v:.5g}"
 
 
+def _segment_demeaned(d: LoopData) -> np.ndarray:
+    """PV minus its mean in each scored segment (0 elsewhere)."""
+    key = "pv_demeaned"
+    if key not in d._cache:
+        ss = d.sample_set
+        use = ss >= 0
+        sid = d.seg_id
+        s = sid[use]
+        nseg = d.seg_start.size
+        y = np.where(use, np.nan_to_num(d.pv), 0.0)
+        cnt = np.maximum(np.bincount(s, minlength=nseg), 1)
+        m = np.bincount(s, weights=y[use], minlength=nseg) / cnt
+        d._cache[key] = np.where(use, y - m[np.maximum(sid, 0)], 0.0)
+    return d._cache[key]
+
+
 def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
     d = prob.data
     ev = prob.evaluate(th)
@@ -363,8 +401,11 @@ def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
     n_tr, n_he = prob.n_train, prob.n_held
     sse_tr = float(np.nansum(e[ss == 0] ** 2))
     sse_he = float(np.nansum(e[ss == 1] ** 2))
-    y0_tr = float(np.sum(st["Py"][ss == 0] ** 2))
-    y0_he = float(np.sum(st["Py"][ss == 1] ** 2))
+    # reference: the PV with each segment's mean removed (the same for every
+    # model of the record, so fit % compares across models and process types)
+    y0 = _segment_demeaned(d)
+    y0_tr = float(np.sum(y0[ss == 0] ** 2))
+    y0_he = float(np.sum(y0[ss == 1] ** 2))
     del sc
     params: dict = {"gain": ev["gain"]}
     units = {"gain": PLANT_PARAMS[model.process_type][0].unit}
@@ -440,9 +481,9 @@ def fit_model(pv, op, sample_time, effects=(), *, process_type="integrating", sp
     process_type : {'integrating', 'self-regulating'}
     sp : array_like, optional
         Set point [PV unit].
-    **options
+    **options : dict
         Passed to :func:`valvediag.workbench.prepare_loop` (``horizon``,
-        ``blocks``, ``band_max``).
+        ``blocks``, ``band_max``, ``name``).
 
     Returns
     -------

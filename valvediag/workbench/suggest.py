@@ -202,7 +202,8 @@ class Suggestion:
     evidence : Evidence
         The residual signature in the current model.
     accepted : bool
-        Held-out RMSE fell by at least :data:`MIN_GAIN` and BIC fell.
+        Held-out RMSE fell by at least :data:`MIN_GAIN` and BIC fell (see
+        :func:`suggest_effects`).
     gain : float
         Relative fall of the held-out RMSE, ``1 - new/base``.
     fit : ModelFit
@@ -294,6 +295,26 @@ class Suggestions:
         return ax
 
 
+def _is_null(effect: str, fit: ModelFit, base: ModelFit) -> bool:
+    """True when the fitted effect does nothing (its parameters at the
+    value that removes it), so that it cannot be accepted."""
+    p = fit.params
+    h = fit.data.sample_time
+    if effect == "dead_time":
+        return p["dead_time"] < 0.25 * h
+    if effect == "lag":
+        return p["lag"] < 0.05 * h
+    if effect == "saturation":
+        return not (math.isfinite(p["sat_low"]) or math.isfinite(p["sat_high"]))
+    if effect == "deadband":
+        return p["DB"] < 1e-6 * fit.data.band_max
+    if effect == "stiction":
+        if "deadband" in base.effects:
+            return p["J"] < 0.01 * p["S"]
+        return p["S"] < 1e-6 * fit.data.band_max
+    return False
+
+
 def suggest_effects(base: ModelFit, candidates=None) -> Suggestions:
     """Rank the effects missing from a fitted model.
 
@@ -314,7 +335,12 @@ def suggest_effects(base: ModelFit, candidates=None) -> Suggestions:
     where two candidates are within 0.5 % of each other the stronger
     residual evidence first. An effect is accepted when the held-out RMSE
     falls by at least :data:`MIN_GAIN` and the BIC falls too (the BIC counts
-    the grid-searched parameters).
+    the grid-searched parameters), both against the base fit and against
+    the base model evaluated at the refit's other parameters (the refit
+    searches those again, and a better optimum of the base is no merit of
+    the effect), and when the fitted effect is not void (a dead time under
+    a quarter sample, a lag under 5 % of a sample, no stop, no jump on top
+    of a dead band).
     """
     data = base.data
     diag = base.diagnose()
@@ -326,7 +352,18 @@ def suggest_effects(base: ModelFit, candidates=None) -> Suggestions:
         ev = effect_evidence(eff, base, diag)
         f = base.model.add(eff).fit(data, start=base)
         gain = 1.0 - f.heldout_rmse / base.heldout_rmse if base.heldout_rmse > 0 else 0.0
-        acc = bool(gain >= MIN_GAIN and f.bic < base.bic)
+        # a fair comparison: the refit also re-searched the base's own
+        # parameters; if the base model at those parameters (the effect
+        # removed) is better than the base fit, the gain is the search's,
+        # not the effect's
+        ref = base
+        if f.theta != base.theta:
+            r = base.model.evaluate(data, f.theta)
+            if r.train_rmse < base.train_rmse:
+                ref = r
+        ref_gain = 1.0 - f.heldout_rmse / ref.heldout_rmse if ref.heldout_rmse > 0 else 0.0
+        acc = bool(gain >= MIN_GAIN and ref_gain >= MIN_GAIN and f.bic < ref.bic
+                   and not _is_null(eff, f, base))
         items.append(Suggestion(effect=eff, params=dict(f.params), fit_pct=f.fit_pct,
                                 heldout_rmse=f.heldout_rmse, bic=f.bic, evidence=ev,
                                 accepted=acc, gain=gain, fit=f))
@@ -483,8 +520,9 @@ def diagnose(pv, op, sample_time, effects=(), *, process_type: str = "integratin
     process_type : {'integrating', 'self-regulating'}
     sp : array_like, optional
         Set point [PV unit].
-    **options
-        Passed to :func:`valvediag.workbench.prepare_loop`.
+    **options : dict
+        Passed to :func:`valvediag.workbench.prepare_loop` (``horizon``,
+        ``blocks``, ``band_max``, ``name``).
 
     Returns
     -------

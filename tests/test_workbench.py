@@ -1,0 +1,275 @@
+"""Model workbench: the chain, the fit, the residual views, the size estimate."""
+import inspect
+import math
+import re
+import time
+
+import numpy as np
+import pytest
+
+from valvediag import simulate_loop
+from valvediag.closedloop import process_matrices
+from valvediag.workbench import (EFFECTS, LoopModel, WorkbenchDataError, check_effects,
+                                 estimate_valve_size, prepare_loop)
+from valvediag.workbench.diagnosis import event_average, valve_breakaways
+from valvediag.workbench.fit import Problem, Theta, zoh_matrices
+
+
+def _sim(**kw):
+    base = dict(kc=2.0, ti=60.0, tau=60.0, sample_time=1.0, duration=2 * 3600, sp_step=1.0,
+                valve="backlash", valve_params={"DB": 3.0}, noise_std=0.0, seed=1)
+    base.update(kw)
+    return simulate_loop(**base)
+
+
+@pytest.fixture(scope="module")
+def clean_backlash():
+    """Noise-free loop: backlash, dead time and lag, integrating plant."""
+    sim = _sim(dead_time=7.0, lag=12.0)
+    return sim, prepare_loop(sim.pv, sim.op, 1.0)
+
+
+# -- the chain ------------------------------------------------------------------------------
+@pytest.mark.parametrize("process", ["integrating", "self-regulating"])
+@pytest.mark.parametrize("lag", [0.0, 4.0, 30.0])
+def test_zoh_matrices_match_process_matrices(process, lag):
+    h, tau = 1.5, 25.0
+    t = 1.0 if process == "integrating" else tau
+    _, _, pg, gg, _ = process_matrices(process, [1.0], [t], [lag], [0.0], [h])
+    ref = (pg[0, 0, 0], pg[0, 0, 1], pg[0, 1, 0], pg[0, 1, 1], gg[0, 0], gg[0, 1])
+    mine = zoh_matrices(process, lag, t, h)
+    used = (2, 3, 5) if lag == 0 else range(6)   # without a lag the z state is unused
+    for i in used:
+        assert mine[i] == pytest.approx(ref[i], abs=1e-12)
+
+
+def test_chain_reproduces_the_simulator(clean_backlash):
+    """Driven by the measured OP with the true parameters, the chain gives the
+    simulated valve position exactly, and the PV to rounding without a lag
+    (exact ZOH, fractional dead time). With a lag, the lag state keeps a
+    trace of the unknown initial valve position at the burn-in (1e-4)."""
+    sim, data = clean_backlash
+    fit = LoopModel(("deadband", "dead_time", "lag")).evaluate(data, Theta(DB=3.0, delay=7.0, lag=12.0))
+    b = data.burn_in
+    np.testing.assert_allclose(fit.valve[b:], sim.mv[b:], atol=1e-12)
+    assert fit.params["gain"] == pytest.approx(1 / 60, rel=1e-3)
+    assert fit.train_rmse < 1e-4 and fit.heldout_rmse < 1e-4
+    assert fit.fit_pct > 99.9
+    sim2 = _sim(dead_time=6.5)
+    data2 = prepare_loop(sim2.pv, sim2.op, 1.0)
+    fit2 = LoopModel(("deadband", "dead_time")).evaluate(data2, Theta(DB=3.0, delay=6.5))
+    assert fit2.params["gain"] == pytest.approx(1 / 60, rel=1e-9)
+    assert fit2.train_rmse < 1e-9 and fit2.heldout_rmse < 1e-9
+
+
+def test_signals_are_kept(clean_backlash):
+    _, data = clean_backlash
+    fit = LoopModel(("deadband", "dead_time", "lag")).evaluate(data, Theta(DB=3.0, delay=7.0, lag=12.0))
+    for name in ("op", "valve", "delayed", "lagged", "load", "plant_input", "pv", "pv_model", "residual"):
+        assert getattr(fit, name).shape == (data.n,)
+    b = data.burn_in
+    np.testing.assert_allclose(fit.delayed[b:], fit.valve[b - 7:-7])
+    np.testing.assert_allclose(fit.plant_input, fit.lagged - fit.load)
+    with pytest.raises(Exception):
+        fit.fit_pct = 0.0          # frozen
+
+
+def test_kernel_score_equals_direct_residual(clean_backlash):
+    """The batch kernel's inner-product SSE equals the residual of the full
+    evaluation, with load columns (bias, drift) in the model."""
+    _, data = clean_backlash
+    noisy = prepare_loop(data.pv + 0.01 * np.random.default_rng(0).standard_normal(data.n),
+                         data.op, 1.0)
+    prob = Problem(noisy, ("deadband", "dead_time", "lag", "bias", "drift"))
+    th = Theta(DB=2.5, delay=5.5, lag=9.0)
+    sc = prob.score([th, th.replace(DB=3.0)])
+    ev = prob.evaluate(th)
+    e = ev["residual"]
+    assert sc[0, 0] == pytest.approx(np.nansum(e[prob.sample_set == 0] ** 2), rel=1e-7)
+    assert sc[0, 1] == pytest.approx(np.nansum(e[prob.sample_set == 1] ** 2), rel=1e-7)
+    assert sc[0, 2] == pytest.approx(ev["gain"], rel=1e-7)
+
+
+def test_correct_model_on_clean_data_fits_close_to_100(clean_backlash):
+    _, data = clean_backlash
+    fit = LoopModel(("deadband", "dead_time", "lag")).fit(data)
+    assert fit.fit_pct > 99.5
+    assert fit.params["DB"] == pytest.approx(3.0, rel=0.01)
+    assert fit.params["dead_time"] == pytest.approx(7.0, abs=0.5)
+    assert fit.params["lag"] == pytest.approx(12.0, rel=0.03)
+
+
+def test_wrong_model_on_clean_data_fits_worse(clean_backlash):
+    _, data = clean_backlash
+    assert LoopModel(("deadband",)).fit(data).fit_pct < 95
+
+
+def test_stiction_kano_recovered_and_bias_jointly():
+    """Kano valve with a load offset: S, J and the offset from one fit (the
+    (S-J)/2 offset and the bias are fitted jointly)."""
+    sim = _sim(valve="kano", valve_params={"S": 3.0, "J": 1.0}, load=2.0, noise_std=0.002)
+    fit = LoopModel(("stiction", "bias")).fit(prepare_loop(sim.pv, sim.op, 1.0))
+    assert fit.params["S"] == pytest.approx(3.0, rel=0.03)
+    assert fit.params["J"] == pytest.approx(1.0, rel=0.05)
+    assert fit.derived["load_offset"] == pytest.approx(2.0, rel=0.02)
+    assert fit.derived["valve_model"] == "kano"
+
+
+def test_self_regulating_plant():
+    rng = np.random.default_rng(3)
+    sim = _sim(process="self-regulating", process_gain=1.5, tau=30.0, kc=1.3, ti=20.0,
+               valve="kano", valve_params={"S": 3.0, "J": 1.0}, duration=3 * 3600)
+    pv = sim.pv + 0.01 * rng.standard_normal(sim.pv.size)
+    fit = LoopModel(("stiction",), "self-regulating").fit(prepare_loop(pv, sim.op, 1.0))
+    assert fit.params["gain"] == pytest.approx(1.5, rel=0.05)
+    assert fit.params["tau"] == pytest.approx(30.0, rel=0.1)
+    assert fit.params["S"] == pytest.approx(3.0, rel=0.05)
+    assert fit.fit_pct > 90
+
+
+def test_held_op_samples_switch_to_he():
+    """Every other OP sample held (compression): 'auto' takes He's model."""
+    sim = _sim(valve="kano", valve_params={"S": 3.0, "J": 1.0})
+    op = sim.op.copy()
+    op[1::2] = op[0:-1:2]
+    data = prepare_loop(sim.pv, op, 1.0)
+    assert data.held_fraction > 0.4
+    fit = LoopModel(("stiction",)).fit(data)
+    assert fit.derived["valve_model"] == "he"
+
+
+# -- effects and data ---------------------------------------------------------------------------
+def test_effect_names_and_units():
+    assert check_effects("dead_time, deadband") == ("deadband", "dead_time")
+    with pytest.raises(ValueError, match="unknown effect"):
+        check_effects(("deadband", "friction"))
+    assert LoopModel(("deadband", "stiction")).effects == ("stiction",)
+    for e in EFFECTS.values():
+        for p in e.params:
+            assert p.unit and p.bounds and p.kind in ("searched", "linear")
+    assert "deadband" not in LoopModel(("stiction",)).candidates()
+
+
+@pytest.mark.parametrize("pv,op,match", [
+    (np.zeros(100), np.zeros(100), "too short"),
+    (np.sin(np.arange(2000) / 30), np.full(2000, 40.0), "never moves"),
+    (np.zeros(2000), np.linspace(0, 50, 2000), "does not oscillate"),
+    (np.zeros(2000), np.zeros(1999), "samples"),
+])
+def test_bad_data_one_line_errors(pv, op, match):
+    with pytest.raises(WorkbenchDataError, match=match) as exc:
+        prepare_loop(pv, op, 1.0)
+    assert "\n" not in str(exc.value)
+
+
+def test_missing_samples_are_left_out(clean_backlash):
+    sim, _ = clean_backlash
+    pv = sim.pv.copy()
+    pv[3000:3010] = np.nan
+    data = prepare_loop(pv, sim.op, 1.0)
+    bad = (data.seg_start <= 3009) & (data.seg_end > 3000)
+    assert np.all(data.seg_set[bad] == -1)
+    fit = LoopModel(("deadband", "dead_time", "lag")).evaluate(data, Theta(DB=3.0, delay=7.0, lag=12.0))
+    assert np.isnan(fit.pv_model[3000:3010]).all() and fit.heldout_rmse < 1e-4
+
+
+def test_no_resampling_and_blocks_alternate(clean_backlash):
+    sim, data = clean_backlash
+    assert data.n == sim.pv.size and data.sample_time == 1.0
+    used = data.seg_set[data.seg_set >= 0]
+    assert used[0] == 0 and used[-1] == 0 and set(used) == {0, 1}
+    assert data.burn_in > data.reversals[0]
+
+
+# -- residual views ---------------------------------------------------------------------------
+def test_diagnosis_views(clean_backlash):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sim, _ = clean_backlash
+    pv = sim.pv + 0.01 * np.random.default_rng(1).standard_normal(sim.pv.size)
+    data = prepare_loop(pv, sim.op, 1.0)
+    fit = LoopModel(("deadband",)).fit(data)
+    dg = fit.diagnose()
+    assert len(dg.worst) == 5 and dg.worst[0].rms >= dg.worst[-1].rms
+    assert all(w.labels for w in dg.worst)
+    assert dg.acf[0] == pytest.approx(1.0)
+    assert dg.acf_band == pytest.approx(2.5758 / math.sqrt((fit.sample_set >= 0).sum()), rel=1e-3)
+    assert dg.ccf.shape == dg.ccf_band.shape == dg.ccf_lags.shape
+    # the missing dead time and lag leave the residual correlated with the OP
+    assert dg.ccf_outside > 0.1
+    assert dg.rev_count >= 10
+    for view in dg.VIEWS:
+        ax = dg.plot(view)
+        assert ax.get_title()
+        plt.close("all")
+    fit.plot()
+    fit.plot_chain()
+    plt.close("all")
+
+
+def test_event_average_and_breakaways():
+    x = np.zeros(100)
+    x[20:30] = 1.0
+    x[60:70] = -1.0
+    lags, m, se, c = event_average(x, [20, 60], [1, -1], 5, 5)
+    assert c == 2 and np.allclose(m[5:], 1.0) and np.allclose(m[:5], 0.0)
+    v = np.r_[np.zeros(10), np.arange(1, 6), np.full(10, 5.0), np.arange(4, 0, -1)]
+    idx, d = valve_breakaways(v)
+    assert list(idx) == [10, 25] and list(d) == [1, -1]
+
+
+# -- size estimate for the scan ------------------------------------------------------------------
+def test_estimate_valve_size_backlash_and_stiction():
+    sim = _sim(dead_time=5.0, noise_std=0.01)
+    t0 = time.perf_counter()
+    out = estimate_valve_size(sim.pv, sim.op, 1.0, "backlash")
+    assert time.perf_counter() - t0 < 10
+    assert out["DB"] == pytest.approx(3.0, rel=0.05)
+    assert out["fit_pct"] > 80 and 0.5 < out["confidence"] <= 1
+    sim = _sim(valve="kano", valve_params={"S": 4.0, "J": 2.0}, noise_std=0.002)
+    out = estimate_valve_size(sim.pv, sim.op, 1.0, "stiction")
+    assert out["S"] == pytest.approx(4.0, rel=0.05) and out["J"] == pytest.approx(2.0, rel=0.1)
+    assert out["valve_model"] == "kano"
+
+
+def test_estimate_valve_size_bad_data_and_bad_fault():
+    out = estimate_valve_size(np.zeros(500), np.full(500, 30.0), 1.0, "stiction")
+    assert math.isnan(out["S"]) and out["confidence"] == 0.0 and "never moves" in out["reason"]
+    with pytest.raises(ValueError):
+        estimate_valve_size(np.zeros(500), np.zeros(500), 1.0, "leak")
+
+
+# -- documentation (as test_docs.py does for the core modules) -------------------------------
+def _public():
+    import valvediag.workbench as wb
+
+    for name in wb.__all__:
+        obj = getattr(wb, name)
+        if inspect.isfunction(obj):
+            yield name, obj
+        elif inspect.isclass(obj):
+            for mname, m in vars(obj).items():
+                if inspect.isfunction(m) and not mname.startswith("_"):
+                    yield f"{name}.{mname}", m
+
+
+@pytest.mark.parametrize("qual,func", list(_public()), ids=lambda x: x if isinstance(x, str) else "")
+def test_workbench_documents_every_parameter(qual, func):
+    doc = inspect.getdoc(func) or ""
+    assert doc, f"{qual} has no docstring"
+    params = [p for p in inspect.signature(func).parameters.values()
+              if p.name not in ("self", "cls") and p.kind is not p.VAR_POSITIONAL]
+    if not params:
+        return
+    assert "Parameters\n----------" in doc, f"{qual} has no Parameters section"
+    section = doc.split("Parameters\n----------", 1)[1].split("\n\nReturns", 1)[0]
+    documented = set()
+    for line in section.splitlines():
+        m = re.match(r"^(\*{0,2}[\w, *]+?)\s*:", line)
+        if m and not line.startswith(" "):
+            documented.update(n.strip().lstrip("*") for n in m.group(1).split(","))
+    missing = [p.name for p in params if p.name not in documented]
+    assert not missing, f"{qual}: undocumented parameters {missing}"

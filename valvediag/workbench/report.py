@@ -1,0 +1,201 @@
+"""
+The workbench's HTML page: one self-contained file per loop.
+
+Overlay before/after, where the starting model fails, the evidence for each
+candidate effect, the error ladder and the recommendation. Figures are SVG
+embedded as ``data:`` URIs (no external resource, nothing to inject), drawn
+with a fixed hash salt and no date, so the same data give the same bytes.
+Every text from the data (file names) is HTML-escaped by jinja2.
+
+The template is ``reports/workbench.html.j2`` next to the package; set
+``VALVEDIAG_REPORTS_DIR`` to use another directory.
+"""
+from __future__ import annotations
+
+import base64
+import io
+import math
+import os
+from pathlib import Path
+
+from .suggest import ErrorLadder
+
+__all__ = ["render_workbench_report", "write_workbench_report", "TEMPLATE", "REPORTS_DIR"]
+
+REPORTS_DIR = Path(os.environ.get("VALVEDIAG_REPORTS_DIR",
+                                  Path(__file__).resolve().parent.parent.parent / "reports"))
+TEMPLATE = "workbench.html.j2"
+
+_RC = {"svg.hashsalt": "valvediag-workbench", "svg.fonttype": "none", "font.size": 8,
+       "axes.titlesize": 9, "figure.dpi": 100, "path.simplify": True}
+
+
+def _svg(fig) -> str:
+    """A figure as a base64 ``data:`` URI of deterministic SVG."""
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="svg", metadata={"Date": None, "Creator": None}, bbox_inches="tight")
+    plt.close(fig)
+    return "data:image/svg+xml;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _fmt(v, unit=""):
+    if isinstance(v, str):
+        return v
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "–"
+    if isinstance(v, float) and math.isinf(v):
+        return "∞" if v > 0 else "−∞"
+    return f"{v:.4g}" + (f" {unit}" if unit else "")
+
+
+def _params(fit) -> list[tuple[str, str]]:
+    return [(k, _fmt(v, fit.units.get(k, ""))) for k, v in fit.params.items()]
+
+
+def _figures(ladder: ErrorLadder) -> dict:
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    first, final = ladder.first, ladder.final
+    diag0 = ladder.steps[0].suggestions.diagnosis if ladder.steps[0].suggestions else first.diagnose()
+    diag1 = ladder.steps[-1].suggestions.diagnosis if ladder.steps[-1].suggestions else final.diagnose()
+    figs = {}
+    with matplotlib.rc_context(_RC):
+        fig, ax = plt.subplots(figsize=(9, 3.2))
+        final.plot(ax, other=first if final is not first else None)
+        figs["overlay"] = _svg(fig)
+        # a close-up of about three periods in the middle of the record
+        d = final.data
+        T = d.period if math.isfinite(d.period) else 40 * d.horizon * d.sample_time
+        mid = d.t[(d.seg_start[len(d.seg_start) // 2])]
+        win = (mid - 1.5 * T, mid + 1.5 * T)
+        fig, ax = plt.subplots(figsize=(9, 3.2))
+        final.plot(ax, other=first if final is not first else None, window=win)
+        figs["overlay_zoom"] = _svg(fig)
+        fig, axes = plt.subplots(3, 1, figsize=(9, 6.5), sharex=True)
+        final.plot_chain(axes, window=win)
+        figs["chain"] = _svg(fig)
+        for key, dg, ft in (("start", diag0, first), ("final", diag1, final)):
+            fig, ax = plt.subplots(figsize=(9, 2.6))
+            dg.plot("residual", ax, fit=ft)
+            figs[f"resid_{key}"] = _svg(fig)
+            fig, axs = plt.subplots(1, 3, figsize=(10.5, 2.8))
+            dg.plot("acf", axs[0])
+            dg.plot("ccf", axs[1])
+            dg.plot("reversals", axs[2])
+            fig.tight_layout()
+            figs[f"corr_{key}"] = _svg(fig)
+        fig, ax = plt.subplots(figsize=(6, 3))
+        ladder.plot(ax)
+        figs["ladder"] = _svg(fig)
+        if ladder.steps[0].suggestions is not None:
+            fig, ax = plt.subplots(figsize=(6, 0.35 * len(ladder.steps[0].suggestions.items) + 1.3))
+            ladder.steps[0].suggestions.plot(ax)
+            figs["candidates"] = _svg(fig)
+    return figs
+
+
+def _recommendation(ladder: ErrorLadder) -> str:
+    first, final = ladder.first, ladder.final
+    added = [s.added for s in ladder.steps[1:]]
+    if not added:
+        return (f"No effect improves the held-out error and the BIC of the model "
+                f"'{first.model.name}': keep it (held-out fit {first.fit_pct:.1f} %).")
+    fall = 100 * (1 - final.heldout_rmse / first.heldout_rmse) if first.heldout_rmse > 0 else 0.0
+    parts = [f"Add {', then '.join(added)}: the held-out RMSE falls {fall:.0f} % "
+             f"({first.heldout_rmse:.4g} to {final.heldout_rmse:.4g}); held-out fit "
+             f"{first.fit_pct:.1f} % to {final.fit_pct:.1f} %."]
+    p = final.params
+    if "S" in p:
+        parts.append(f"Sticky valve: stick band S = {p['S']:.3g}, slip jump J = {p['J']:.3g} "
+                     "(OP units).")
+    elif "DB" in p:
+        parts.append(f"Loose valve: dead band DB = {p['DB']:.3g} (OP units).")
+    return " ".join(parts)
+
+
+def render_workbench_report(ladder: ErrorLadder, *, name: str = "", meta: dict | None = None) -> str:
+    """Render the workbench page for one loop.
+
+    Parameters
+    ----------
+    ladder : ErrorLadder
+        From :func:`valvediag.workbench.forward_select` (its first step
+        carries the evidence for every candidate).
+    name : str
+        Record name (file) shown in the title; escaped.
+    meta : dict, optional
+        Extra rows for the data table (label -> value), escaped.
+
+    Returns
+    -------
+    str
+        The HTML page.
+    """
+    import jinja2
+
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(os.fspath(REPORTS_DIR)),
+                             autoescape=True, trim_blocks=True, lstrip_blocks=True,
+                             undefined=jinja2.StrictUndefined)
+    first, final = ladder.first, ladder.final
+    d = final.data
+    sug = ladder.steps[0].suggestions
+    data_rows = [("record", name or d.name or "–"), ("samples", f"{d.n:,}"),
+                 ("sample time", f"{d.sample_time:g} s"),
+                 ("OP period", _fmt(d.period, "s")),
+                 ("horizon (re-initialised every)", f"{d.horizon} samples"),
+                 ("scored from", f"{d.t[d.burn_in]:g} s (valve state known)"),
+                 ("training / held-out samples", f"{final.n_train:,} / {final.n_heldout:,}"),
+                 ("process type", final.model.process_type)]
+    data_rows += [(str(k), str(v)) for k, v in (meta or {}).items()]
+    cands = []
+    if sug is not None:
+        for s in sug.items:
+            cands.append(dict(effect=s.effect, accepted=s.accepted, gain=f"{100 * s.gain:+.1f} %",
+                              fit=f"{s.fit_pct:.1f}", rmse=f"{s.heldout_rmse:.4g}",
+                              bic=f"{s.bic:.1f}", signature=s.evidence.signature,
+                              statistic=_fmt(s.evidence.statistic), summary=s.evidence.summary,
+                              params=", ".join(f"{k} = {v}" for k, v in _params(s.fit))))
+    rows = []
+    for i, (r, st) in enumerate(zip(ladder.rows(), ladder.steps)):
+        rows.append(dict(step=i, model=r["model"], added=r["added"] or "start", k=r["n_params"],
+                         fit=f"{r['fit_pct']:.1f}", rmse=f"{r['heldout_rmse']:.4g}",
+                         bic=f"{r['bic']:.1f}",
+                         params=", ".join(f"{k} = {v}" for k, v in _params(st.fit))))
+    diag0 = sug.diagnosis if sug is not None else first.diagnose()
+    worst = [dict(span=f"{w.start:.0f}–{w.end:.0f} s", rms=f"{w.rms:.3g}", ratio=f"{w.ratio:.1f}",
+                  labels=", ".join(w.labels), set="held-out" if w.heldout else "training")
+             for w in diag0.worst]
+    return env.get_template(TEMPLATE).render(
+        name=name or d.name or "loop", data_rows=data_rows, first=first.model.name,
+        final=final.model.name, first_params=_params(first), final_params=_params(final),
+        first_fit=f"{first.fit_pct:.1f}", final_fit=f"{final.fit_pct:.1f}",
+        recommendation=_recommendation(ladder), candidates=cands, ladder=rows, worst=worst,
+        diag_summary=diag0.summary(), figs=_figures(ladder))
+
+
+def write_workbench_report(ladder: ErrorLadder, path, *, name: str = "", meta: dict | None = None) -> Path:
+    """Write the workbench page to ``path``.
+
+    Parameters
+    ----------
+    ladder : ErrorLadder
+    path : str or path-like
+        Output file (its directory is created).
+    name : str
+        Record name shown in the page.
+    meta : dict, optional
+        Extra rows for the data table.
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(render_workbench_report(ladder, name=name, meta=meta), encoding="utf-8")
+    return path
