@@ -28,7 +28,7 @@ def main():
 
     t0 = time.perf_counter()
     from valvediag import simulate_loop
-    from valvediag.workbench import diagnose, estimate_valve_size
+    from valvediag.workbench import diagnose, estimate_valve_size, forward_select, prepare_loop
 
     truth = dict(valve="kano", valve_params={"S": 3.0, "J": 1.0}, dead_time=12.0)
     sim = simulate_loop(kc=1.5, ti=90, tau=60, sample_time=1.0, n_samples=86_400, sp_step=1.0,
@@ -58,6 +58,11 @@ def main():
             print(f"    {i}. {s.effect:10s} {'accepted' if s.accepted else 'rejected'}  "
                   f"fit {s.fit_pct:6.1f} %  held-out RMSE {s.heldout_rmse:.4g}  "
                   f"({100 * s.gain:+.0f} %)  {ps}")
+    t1 = time.perf_counter()
+    ladder = forward_select(prepare_loop(pv, sim.op, 1.0), ())
+    print(f"\n  forward selection (what 'valvediag model report' runs), from the plant alone: "
+          f"{time.perf_counter() - t1:.1f} s")
+    print("    " + ladder.table().replace("\n", "\n    "))
     t1 = time.perf_counter()
     size = estimate_valve_size(pv, sim.op, 1.0, "stiction")
     print(f"\n  estimate_valve_size(stiction), one day: {time.perf_counter() - t1:.1f} s -> {size}")

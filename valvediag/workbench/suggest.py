@@ -38,9 +38,11 @@ class Evidence:
     signature : str
         What the effect's absence leaves in the residual.
     statistic : float
-        Strength of that signature in units of its standard error (or of the
-        99 % band for correlations divided by 2.58): about 1 means nothing
-        seen, above 3 clear.
+        Strength of that signature in units of its standard error, computed
+        across events or segments (reversals, segments) since samples
+        within a segment are correlated; for correlations, the peak over
+        the 99 % band times 2.58. Descriptive: where it is a maximum over
+        positions or lags it is larger than a test statistic would be.
     summary : str
         One sentence on what was measured.
     """
@@ -110,26 +112,47 @@ def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -
                                    f"{_g(m[k])} PV {(k - w // 4) * h:.0f} s after the reversal "
                                    f"({stat:.1f} standard errors)")
     if effect == "stiction":
-        brk, dirn = valve_breakaways(fit.valve)
-        what = "modelled valve breakaways"
-        if brk.size < 3:
-            brk, dirn, what = d.reversals, -d.reversal_sign.astype(float), "OP reversals"
-        # change of the residual's slope across the event, signed with travel
-        lags, m, se, c = event_average(e, brk, dirn, w, w)
-        if c < 3:
-            return Evidence(sig, 0.0, f"too few {what} to average")
-        before = m[w] - m[0]
-        after = m[-1] - m[w]
-        ev = np.asarray(brk)
-        ok = (ev - w >= 0) & (ev + w < e.size)
-        X = e[ev[ok][:, None] + np.array([-w, 0, w])[None, :]] * np.asarray(dirn)[ok][:, None]
-        kink = (X[:, 2] - X[:, 1]) - (X[:, 1] - X[:, 0])
-        kink = kink[np.isfinite(kink)]
-        stat = float(abs(kink.mean()) / (kink.std(ddof=1) / math.sqrt(kink.size))) \
-            if kink.size > 2 and kink.std() > 0 else 0.0
-        return Evidence(sig, stat, f"across {c} {what} the signed residual changes by "
-                                   f"{_g(after)} PV in {w * h:.0f} s after vs {_g(before)} before "
-                                   f"({stat:.1f} standard errors)")
+        # A missing slip jump J: after each OP reversal the true valve stays
+        # put until the OP has travelled S, then jumps J further than the
+        # model's valve in the direction of travel. The residual's rate,
+        # signed with the travel, therefore steps (by g J on an integrator)
+        # at an OP travel S after the reversals. Per reversal: the rate
+        # binned by travel; at each bin edge b the step of the rate beyond
+        # its local trend; the statistic is the mean over reversals in units
+        # of its standard error, at the b where it is largest.
+        trav, rate, ev_id = _travel_rate(fit)
+        if trav.size < 50:
+            return Evidence(sig, 0.0, "too few samples after OP reversals")
+        nb = 20
+        edges = np.linspace(0.0, d.band_max, nb + 1)
+        b_of = np.digitize(trav, edges) - 1
+        ok = (b_of >= 0) & (b_of < nb)
+        ne = int(ev_id.max()) + 1
+        key = ev_id[ok] * nb + b_of[ok]
+        cnt = np.bincount(key, minlength=ne * nb).reshape(ne, nb)
+        sm = np.bincount(key, weights=rate[ok], minlength=ne * nb).reshape(ne, nb)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = sm / cnt
+        best = (0.0, 0.0, 0.0, 0)
+        for b in range(2, nb - 1):
+            blk = m[:, b - 2:b + 2]
+            use = np.isfinite(blk).all(axis=1)
+            if use.sum() < 5:
+                continue
+            blk = blk[use]
+            # the step at b beyond the local trend: a dead time or lag error
+            # changes the rate smoothly with travel, a missing jump abruptly
+            step = blk[:, 2] - blk[:, 1]
+            trend = 0.5 * ((blk[:, 1] - blk[:, 0]) + (blk[:, 3] - blk[:, 2]))
+            diff = step - trend
+            sd = diff.std(ddof=1)
+            z = abs(diff.mean()) / (sd / math.sqrt(diff.size)) if sd > 0 else 0.0
+            if z > best[0]:
+                best = (z, step.mean(), edges[b], int(diff.size))
+        z, jump, at, nev = best
+        return Evidence(sig, float(z), f"over {nev} reversals the residual's rate, signed with the "
+                                       f"travel, steps by {_g(jump)} PV/s at an OP travel of "
+                                       f"{at:.3g} ({z:.1f} standard errors)")
     if effect == "dead_time":
         pos = diag.ccf_lags > 0
         r = np.abs(diag.ccf[pos]) / diag.ccf_band[pos] * Z99
@@ -168,20 +191,51 @@ def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -
                         f"rate error changes by {_g(b * 3600)} PV/s per hour ({stat:.1f} "
                         f"standard errors); neighbouring segments correlate {r1:+.2f}")
     if effect == "saturation":
+        # per segment (samples within one are correlated): mean squared
+        # residual of segments that spend a fifth of their time near an OP
+        # extreme against the others
         lo, hi = np.percentile(d.op, [0.5, 99.5])
         span = hi - lo
-        at = ((d.op <= lo + 0.03 * span) | (d.op >= hi - 0.03 * span)) & np.isfinite(e)
-        rest = ~at & np.isfinite(e)
-        if at.sum() < 5 or rest.sum() < 5:
-            return Evidence(sig, 0.0, "the OP hardly reaches its extremes")
-        a2, b2 = e[at] ** 2, e[rest] ** 2
+        near = (d.op <= lo + 0.03 * span) | (d.op >= hi - 0.03 * span)
+        a2, b2 = [], []
+        for a, b, st in zip(d.seg_start, d.seg_end, d.seg_set):
+            if st < 0:
+                continue
+            ms = float(np.nanmean(e[a:b] ** 2))
+            (a2 if near[a:b].mean() >= 0.2 else b2).append(ms)
+        a2, b2 = np.array(a2), np.array(b2)
+        if a2.size < 2 or b2.size < 2:
+            return Evidence(sig, 0.0, "the OP hardly dwells near its extremes")
         ratio = math.sqrt(a2.mean() / b2.mean()) if b2.mean() > 0 else math.inf
-        stat = (a2.mean() - b2.mean()) / math.sqrt(a2.var() / a2.size + b2.var() / b2.size) \
-            if a2.var() + b2.var() > 0 else 0.0
+        den = math.sqrt(a2.var(ddof=1) / a2.size + b2.var(ddof=1) / b2.size)
+        stat = (a2.mean() - b2.mean()) / den if den > 0 else 0.0
         return Evidence(sig, float(max(stat, 0.0)),
-                        f"residual RMS near the OP extremes is {ratio:.2f} times the rest "
-                        f"({a2.size} samples)")
+                        f"residual RMS in the {a2.size} segments near the OP extremes is "
+                        f"{ratio:.2f} times that of the other {b2.size}")
     raise ValueError(f"unknown effect {effect!r}")
+
+
+def _travel_rate(fit: ModelFit):
+    """OP travel since the last reversal and the residual's rate [PV/s],
+    both signed with the direction of travel, and the reversal's index, for
+    the scored samples."""
+    d = fit.data
+    h = d.sample_time
+    e = fit.residual
+    de = np.r_[np.nan, np.diff(e)] / h
+    de[d.seg_start] = np.nan
+    rev = d.reversals
+    if rev.size < 2:
+        return np.array([]), np.array([])
+    # direction after each reversal: away from the extreme
+    k = np.searchsorted(rev, np.arange(d.n), side="right") - 1
+    has = k >= 0
+    kk = np.maximum(k, 0)
+    sgn = -d.reversal_sign[kk].astype(float)
+    trav = sgn * (d.op - d.op[rev[kk]])
+    rate = sgn * de
+    ok = has & np.isfinite(rate) & (d.sample_set >= 0)
+    return trav[ok], rate[ok], kk[ok]
 
 
 def _g(x):
