@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .kernels import turning_points
+from .kernels import nudge_holds, turning_points
 
 __all__ = ["LoopData", "WorkbenchDataError", "prepare_loop"]
 
@@ -101,6 +101,32 @@ class LoopData:
     held_fraction: float
     name: str = ""
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def hold_run(self) -> int:
+        """Longest run of repeated OP samples bridged by a rest tolerance: the
+        95th percentile of the runs, 1 to 30 samples [samples]."""
+        key = "hold_run"
+        if key not in self._cache:
+            same = np.r_[False, np.diff(self.op) == 0]
+            edges = np.flatnonzero(np.diff(np.r_[0, same.astype(np.int8), 0]))
+            runs = edges[1::2] - edges[::2]
+            self._cache[key] = int(np.clip(np.percentile(runs, 95), 1, 30)) if runs.size else 1
+        return self._cache[key]
+
+    def op_nudged(self) -> np.ndarray:
+        """The OP with held runs of up to :attr:`hold_run` samples creeping on
+        in the direction of travel (not rests for the Kano valve).
+
+        Returns
+        -------
+        numpy.ndarray
+        """
+        key = "op_nudged"
+        if key not in self._cache:
+            eps = 1e-9 * max(float(np.ptp(self.op)), 1.0)
+            self._cache[key] = nudge_holds(self.op, self.hold_run, eps)
+        return self._cache[key]
 
     @property
     def n(self) -> int:

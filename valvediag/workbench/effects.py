@@ -80,9 +80,9 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            (Param("S", "OP unit", "0 to band_max", "searched",
                   "dead band plus stick band (Kano et al. 2004)"),
             Param("J", "OP unit", "0 to S", "searched", "slip jump at breakaway")),
-           "Kano (S, J) stick-slip valve; with held or compressed OP samples the He et al. "
-           "(2007) form of the same S, J is used so that held samples are not false rests. "
-           "Replaces 'deadband' (a Kano valve with J = 0 is a dead band of width S).",
+           "Kano (S, J) stick-slip valve (He et al. 2007 on request); with held or compressed "
+           "OP samples short runs of repeated samples are not taken as rests. Replaces "
+           "'deadband' (a Kano valve with J = 0 is a dead band of width S).",
            "steps in the residual just after each breakaway, alternating in sign with the "
            "direction of travel"),
     Effect("saturation", "valve",

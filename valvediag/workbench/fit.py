@@ -28,6 +28,8 @@ from .effects import check_effects
 __all__ = ["Theta", "Problem", "search", "linear_columns"]
 
 PROCESS_TYPES = ("integrating", "self-regulating")
+#: Above this fraction of repeated OP samples the Kano valve gets a rest tolerance.
+HELD_FRACTION = 0.05
 
 
 @dataclass(frozen=True)
@@ -127,10 +129,12 @@ class Problem:
     process_type : {'integrating', 'self-regulating'}
     drift_knots : int
         Interior knots of the drift.
-    valve_model : {'kano', 'he', 'auto'}
+    valve_model : {'auto', 'kano', 'he'}
         Stiction model: Kano et al. (2004) or He et al. (2007) with
-        ``fs = (S + J)/2``, ``fd = (S - J)/2``; ``'auto'`` here means He when
-        more than 5 % of the OP samples are held (false Kano rests).
+        ``fs = (S + J)/2``, ``fd = (S - J)/2``. ``'auto'``: Kano, with a rest
+        tolerance when more than :data:`HELD_FRACTION` of the OP samples
+        repeat the previous one (held or compressed data): runs of up to
+        ``data.hold_run`` repeated samples are not rests.
     """
 
     def __init__(self, data: LoopData, effects, process_type="integrating", drift_knots=3,
@@ -141,12 +145,17 @@ class Problem:
         self.effects = check_effects(effects)
         self.process_type = process_type
         self.drift_knots = int(drift_knots)
+        self.rest_tolerance = 0
+        self.u = data.op
         if "stiction" in self.effects:
             vm = valve_model
             if vm == "auto":
-                vm = "he" if data.held_fraction > 0.05 else "kano"
+                vm = "kano"
+                if data.held_fraction > HELD_FRACTION:
+                    self.rest_tolerance = data.hold_run
+                    self.u = data.op_nudged()
             if vm not in ("kano", "he"):
-                raise ValueError(f"valve_model must be 'kano' or 'he', not {valve_model!r}")
+                raise ValueError(f"valve_model must be 'auto', 'kano' or 'he', not {valve_model!r}")
             self.vcode = KANO if vm == "kano" else HE
             self.valve_model = vm
         elif "deadband" in self.effects:
@@ -285,7 +294,7 @@ class Problem:
             P = np.ascontiguousarray(np.array([self.row(thetas[i]) for i in idx]))
             o = np.empty((len(idx), 3 + self.p))
             fn = kernels.score_batch if len(idx) >= 4 else kernels.score_serial
-            fn(d.op, self.vcode, P, d.seg_start, d.seg_end, d.seg_set,
+            fn(self.u, self.vcode, P, d.seg_start, d.seg_end, d.seg_set,
                                 st["qv"], st["WT"], st["Py"], st["ystats"], st["G2"], st["Ginv"],
                                 st["GinvWy"], o)
             out[idx] = o
@@ -299,7 +308,7 @@ class Problem:
         n = d.n
         row = self.row(theta)
         x, xd, z, r = (np.empty(n) for _ in range(4))
-        kernels.simulate_chain(d.op, self.vcode, row[0], row[1], row[11], row[2], row[3], row[4],
+        kernels.simulate_chain(self.u, self.vcode, row[0], row[1], row[11], row[2], row[3], row[4],
                                *row[5:11], x, xd, z, r)
         st = self.setup(theta)
         qa = st["qa"]

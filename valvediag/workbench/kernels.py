@@ -253,3 +253,30 @@ def turning_points(u, delta):
             d = 1
             hi_i = k
     return idx[:m], sgn[:m], conf[:m]
+
+
+@numba.njit(cache=True)
+def nudge_holds(u, max_run, eps):
+    """OP as a Kano valve should see it when held samples are not rests.
+
+    Within a run of at most ``max_run`` repeated samples the value creeps on
+    by ``eps`` per sample in the last direction of travel, so the valve
+    model finds neither a rest nor a reversal there; longer runs stay
+    (genuine rests)."""
+    n = u.shape[0]
+    out = u.copy()
+    d = 0.0
+    k = 1
+    while k < n:
+        if u[k] != u[k - 1]:
+            d = 1.0 if u[k] > u[k - 1] else -1.0
+            k += 1
+            continue
+        j = k
+        while j < n and u[j] == u[j - 1]:
+            j += 1
+        if j - k <= max_run and d != 0.0:
+            for i in range(k, j):
+                out[i] = out[i - 1] + d * eps
+        k = j
+    return out

@@ -45,9 +45,10 @@ class LoopModel:
         ``K / (tau s + 1)``.
     valve_model : {'auto', 'kano', 'he'}
         Stiction model: Kano et al. (2004), or He et al. (2007) with the
-        same ``S = fs + fd`` and ``J = fs - fd``. ``'auto'``: He when more
-        than 5 % of the OP samples repeat the previous one (held or
-        compressed data, false rests for Kano's model), else Kano.
+        same ``S = fs + fd`` and ``J = fs - fd``. ``'auto'``: Kano, with a
+        rest tolerance when more than 5 % of the OP samples repeat the
+        previous one (held or compressed data would otherwise be false
+        rests): short runs of repeated samples are not rests.
     drift_knots : int
         Interior knots of the piecewise-linear drift.
 
@@ -436,6 +437,8 @@ def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
     derived: dict = {}
     if prob.vcode in (KANO, HE):
         derived["valve_model"] = prob.valve_model
+        if prob.rest_tolerance:
+            derived["rest_tolerance"] = int(prob.rest_tolerance)
     g = ev["gain"]
     if "bias" in eff:
         params["bias"] = lin["bias"]
