@@ -41,7 +41,7 @@ def _nan_fill(x):
     return out
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LoopData:
     """One loop's record, split into re-initialised segments.
 
@@ -235,7 +235,7 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     Missing OP samples are held (so the valve chain can run) and every
     segment that contains a missing PV or OP sample is left out of fit and
     score. The first samples, until the OP has reversed and then travelled
-    ``band_max`` (or the 75th percentile OP swing if smaller), plus half a
+    ``band_max`` (or the 25th percentile OP swing if smaller), plus half a
     period, are not scored: there the valve state (and a lag fed by it)
     depends on the unknown initial position (METHOD.md pitfalls). The data
     are never resampled.
@@ -287,9 +287,9 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     # (the first extreme only fixes the direction; the second is a reversal),
     # plus half a period: the longest dead time searched fills the delay line
     # and a lag forgets the unknown valve position of the start
-    # (a valve band wider than most OP swings would hardly ever move: the
-    # hysteresis is the smaller of band_max and the 75th percentile swing)
-    _, _, bconf = turning_points(op, max(min(band_max, float(np.percentile(swing, 75))), delta))
+    # (a valve that moves in most half-cycles has a band below the 25th
+    # percentile OP swing: that is the hysteresis, if below band_max)
+    _, _, bconf = turning_points(op, max(min(band_max, float(np.percentile(swing, 25))), delta))
     burn = int(bconf[1]) if bconf.size >= 2 else int(conf[1])
     P = period if np.isfinite(period) else 0.1 * n * h
     burn += int(max(5, min(round(0.5 * P / h), 600)))

@@ -55,7 +55,7 @@ class WorstSegment:
     heldout: bool
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Diagnosis:
     """Residual analysis of one fitted model.
 

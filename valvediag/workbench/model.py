@@ -60,6 +60,11 @@ class LoopModel:
     rougher than Kano's. A Kano valve driven by a noisy OP sticks at every
     noise reversal, as the model says; a real positioner may filter them.
 
+    On a self-regulating plant a lag and the plant time constant are
+    interchangeable in the transfer function ``K / ((tau s + 1)(lag s + 1))``;
+    only the load (which enters after the lag) tells them apart, so read
+    them as a pair.
+
     The chain is: OP -> valve (dead band or stiction, then saturation) ->
     dead time (whole samples) -> first-order lag -> plant input minus load
     (bias + drift) -> plant -> PV. The load enters after the lag; for a
@@ -168,7 +173,7 @@ class LoopModel:
         return _result(self, prob, th)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ModelFit:
     """A fitted loop model with every intermediate signal.
 

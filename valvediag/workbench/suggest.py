@@ -242,7 +242,7 @@ def _g(x):
     return f"{x:+.3g}" if np.isfinite(x) else "nan"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Suggestion:
     """One candidate effect, refitted and scored.
 
@@ -283,7 +283,7 @@ class Suggestion:
                 "bic": _num(self.bic), "evidence": ev}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Suggestions:
     """Candidate effects for one model, best first.
 
@@ -427,7 +427,7 @@ def suggest_effects(base: ModelFit, candidates=None) -> Suggestions:
     return Suggestions(base=base, diagnosis=diag, items=tuple(items))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LadderStep:
     """One rung of the error ladder.
 
@@ -451,7 +451,7 @@ class LadderStep:
         return self.fit.effects
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ErrorLadder:
     """Greedy forward selection: the model, step by step, and its errors.
 
