@@ -90,6 +90,29 @@ def test_kernel_score_equals_direct_residual(clean_backlash):
     assert sc[0, 2] == pytest.approx(ev["gain"], rel=1e-7)
 
 
+def test_reinit_at_the_measured_pv(clean_backlash):
+    """Segments re-initialised at the measured PV: the kernel still equals
+    the direct residual, the truth still fits exactly on clean data, and with
+    PV noise the error is about sqrt(2) times that of the fitted start."""
+    sim, data = clean_backlash
+    m = LoopModel(("deadband", "dead_time", "lag", "bias"))
+    th = Theta(DB=3.0, delay=7.0, lag=12.0)
+    clean = prepare_loop(sim.pv, sim.op, 1.0, reinit="measured")
+    assert m.evaluate(clean, th).heldout_rmse < 1e-4
+    pv = sim.pv + 0.01 * np.random.default_rng(5).standard_normal(sim.pv.size)
+    meas = prepare_loop(pv, sim.op, 1.0, reinit="measured")
+    prob = Problem(meas, m.effects)
+    sc = prob.score([th.replace(DB=2.5)])
+    ev = prob.evaluate(th.replace(DB=2.5))
+    assert sc[0, 0] == pytest.approx(np.nansum(ev["residual"][prob.sample_set == 0] ** 2), rel=1e-7)
+    r_meas = m.evaluate(meas, th).heldout_rmse
+    r_fit = m.evaluate(prepare_loop(pv, sim.op, 1.0), th).heldout_rmse
+    assert r_fit == pytest.approx(0.01, rel=0.1)
+    assert r_meas == pytest.approx(np.sqrt(2) * 0.01, rel=0.15)
+    with pytest.raises(WorkbenchDataError):
+        prepare_loop(pv, sim.op, 1.0, reinit="zero")
+
+
 def test_correct_model_on_clean_data_fits_close_to_100(clean_backlash):
     _, data = clean_backlash
     fit = LoopModel(("deadband", "dead_time", "lag")).fit(data)

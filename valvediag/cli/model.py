@@ -30,6 +30,9 @@ def _common(p, *, effects_default: str, effects_help: str):
                         "the OP period, 30-600)")
     p.add_argument("--blocks", type=int, default=9,
                    help="alternating training/held-out time blocks (odd, default 9)")
+    p.add_argument("--reinit", choices=("fit", "measured"), default="fit",
+                   help="start each segment's prediction from its best initial state (default; "
+                        "robust to PV noise) or from the measured PV")
     for role in ("timestamp", "pv", "op", "sp"):
         p.add_argument(f"--{role}-column", metavar="NAME",
                        help=f"name of the {role} column if it is not '{role}'")
@@ -108,7 +111,7 @@ def _load(args):
     try:
         data = prepare_loop(rec.pv, rec.op, rec.sample_time, sp=rec.sp,
                             horizon=args.horizon if args.horizon else "auto", blocks=args.blocks,
-                            name=Path(args.file).name)
+                            name=Path(args.file).name, reinit=args.reinit)
     except WorkbenchDataError as exc:
         raise CommandError(f"{args.file}: {exc}") from None
     return data, effects, meta

@@ -81,6 +81,10 @@ class LoopData:
         compressed data (false rests for the Kano model).
     name : str
         Label of the record (file name) for reports.
+    reinit : {'fit', 'measured'}
+        How each segment's prediction starts: from the best initial state
+        (fitted per segment, robust to PV noise) or from the measured PV at
+        the segment's first sample.
     """
 
     t: np.ndarray
@@ -100,6 +104,7 @@ class LoopData:
     reversal_sign: np.ndarray
     held_fraction: float
     name: str = ""
+    reinit: str = "fit"
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -192,7 +197,7 @@ def _shade_heldout(ax, data: LoopData):
 
 
 def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 9,
-                 band_max=None, name: str = "") -> LoopData:
+                 band_max=None, name: str = "", reinit: str = "fit") -> LoopData:
     """Prepare a loop record for the workbench.
 
     Parameters
@@ -218,6 +223,12 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
         OP swing between reversals (at most 1.1 times the OP's 1-99 % range).
     name : str
         Label of the record for reports.
+    reinit : {'fit', 'measured'}
+        Start of each segment's prediction: ``'fit'`` (default), the best
+        initial state of the segment (one nuisance value per segment, also
+        on held-out segments; the measurement noise of a single sample does
+        not offset the whole segment), or ``'measured'``, the measured PV at
+        the segment's first sample.
 
     Returns
     -------
@@ -240,6 +251,8 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     depends on the unknown initial position (METHOD.md pitfalls). The data
     are never resampled.
     """
+    if reinit not in ("fit", "measured"):
+        raise WorkbenchDataError(f"reinit must be 'fit' or 'measured', not {reinit!r}")
     h = float(sample_time)
     if not np.isfinite(h) or h <= 0:
         raise WorkbenchDataError(f"sample time must be a positive number of seconds, got {sample_time!r}")
@@ -327,4 +340,4 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     return LoopData(t=t, pv=pv, op=op, sp=sp, sample_time=h, horizon=H, period=period,
                     burn_in=burn, seg_start=starts.astype(np.int64), seg_end=ends.astype(np.int64),
                     seg_set=sets, band_max=band_max, op_delta=float(delta), reversals=rev,
-                    reversal_sign=rsg, held_fraction=held, name=str(name))
+                    reversal_sign=rsg, held_fraction=held, name=str(name), reinit=reinit)

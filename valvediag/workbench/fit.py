@@ -170,6 +170,7 @@ class Problem:
         self.n_evals = 0
         d = data
         self.sample_set = d.sample_set
+        self.anchored = d.reinit == "measured"
         self.seg_id = d.seg_id
         self.n_train = int((self.sample_set == 0).sum())
         self.n_held = int((self.sample_set == 1).sum())
@@ -182,7 +183,9 @@ class Problem:
         return math.exp(-self.data.sample_time / theta.tau)
 
     def project(self, X, qa):
-        """Remove each segment's free response from the columns of ``X``."""
+        """Remove each segment's free response from the columns of ``X``:
+        projected out (best initial state), or from the segment's first
+        value (``data.reinit == 'measured'``)."""
         X = np.asarray(X, dtype=float)
         two = X.ndim == 2
         X2 = X if two else X[:, None]
@@ -201,6 +204,10 @@ class Problem:
         out = np.zeros_like(X2)
         for c in range(X2.shape[1]):
             xs = X2[use, c]
+            if self.anchored:
+                # free response from the segment's first (measured) value
+                out[use, c] = xs - w * xs[first_of][s_rank]
+                continue
             if qa == 1.0:
                 # subtract each segment's first value (precision for integrators)
                 xs = xs - xs[first_of][s_rank]
@@ -238,7 +245,15 @@ class Problem:
         Ginv = np.linalg.pinv(G2[0]) if self.p else np.zeros((0, 0))
         Lmax = int((self.data.seg_end - self.data.seg_start).max())
         qv = qa ** np.arange(Lmax, dtype=float) if qa != 1.0 else np.ones(Lmax)
-        st = dict(qa=qa, qv=qv, Py=Py, W=W, WT=np.ascontiguousarray(np.stack([(W * (self.sample_set == s)[:, None]).T
+        nseg = self.data.seg_start.size
+        qW = np.zeros((nseg, self.p))
+        if self.anchored and self.p:
+            use = self.sample_set >= 0
+            sid = self.seg_id[use]
+            jj = np.flatnonzero(use) - self.data.seg_start[sid]
+            for c in range(self.p):
+                qW[:, c] = np.bincount(sid, weights=qv[jj] * W[use, c], minlength=nseg)
+        st = dict(qa=qa, qv=qv, qW=qW, Py=Py, W=W, WT=np.ascontiguousarray(np.stack([(W * (self.sample_set == s)[:, None]).T
                                                                  for s in (0, 1)])), ystats=ystats, G2=G2,
                   Ginv=Ginv,
                   GinvWy=Ginv @ ystats[0, 1:] if self.p else np.zeros(0))
@@ -295,7 +310,7 @@ class Problem:
             o = np.empty((len(idx), 3 + self.p))
             fn = kernels.score_batch if len(idx) >= 4 else kernels.score_serial
             fn(self.u, self.vcode, P, d.seg_start, d.seg_end, d.seg_set,
-                                st["qv"], st["WT"], st["Py"], st["ystats"], st["G2"], st["Ginv"],
+                                st["qv"], st["WT"], st["qW"], self.anchored, st["Py"], st["ystats"], st["G2"], st["Ginv"],
                                 st["GinvWy"], o)
             out[idx] = o
             self.n_evals += len(idx)

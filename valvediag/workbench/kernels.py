@@ -95,8 +95,8 @@ def _chain_response(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0
 
 
 @numba.njit(cache=True, fastmath=True)
-def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, Py, ystats, G2, Ginv,
-               GinvWy, out, r):
+def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats,
+               G2, Ginv, GinvWy, out, r):
     p = WT.shape[1]
     ns = seg_start.shape[0]
     _chain_response(u, vcode, P[i, 0], P[i, 1], P[i, 11], P[i, 2], P[i, 3], P[i, 4], P[i, 5],
@@ -112,32 +112,47 @@ def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, Py, ystats, 
             continue
         a = seg_start[j]
         b = seg_end[j]
-        # for an integrator a constant per segment is projected out anyway:
-        # subtract the first value to keep the sums well scaled
-        off = r[a] if integ else 0.0
         s_rr = 0.0
         s_ry = 0.0
-        sq = 0.0
-        qq = 0.0
-        for k in range(a, b):
-            rc = r[k] - off
-            q = qv[k - a]
-            s_rr += rc * rc
-            s_ry += rc * Py[k]
-            sq += q * rc
-            qq += q * q
-        rr[st] += s_rr - sq * sq / qq
+        if anchored:
+            # re-initialised at the measured PV: remove the free response
+            # from the segment's first value
+            off = r[a]
+            for k in range(a, b):
+                rc = r[k] - qv[k - a] * off
+                s_rr += rc * rc
+                s_ry += rc * Py[k]
+            rr[st] += s_rr
+        else:
+            # re-initialised at the best initial state: project the free
+            # response out; for an integrator a constant per segment is
+            # projected out anyway, so subtract the first value to keep the
+            # sums well scaled
+            off = r[a] if integ else 0.0
+            sq = 0.0
+            qq = 0.0
+            for k in range(a, b):
+                rc = r[k] - off
+                q = qv[k - a]
+                s_rr += rc * rc
+                s_ry += rc * Py[k]
+                sq += q * rc
+                qq += q * q
+            rr[st] += s_rr - sq * sq / qq
         ry[st] += s_ry
-    # the fixed columns are already projected (orthogonal to each segment's
-    # free response), so their inner products need no per-segment offset:
-    # one contiguous dot product per column and set (WT is masked per set)
+        # offset part of the fixed columns' inner products (zero when they
+        # are projected: orthogonal to each segment's free response)
+        for c in range(p):
+            rW[st, c] -= off * qW[j, c]
+    # inner products with the fixed columns: one contiguous dot product per
+    # column and set (WT is masked per set)
     for t2 in range(2):
         for c in range(p):
             w = WT[t2, c]
             s_w = 0.0
             for k in range(r.shape[0]):
                 s_w += r[k] * w[k]
-            rW[t2, c] = s_w
+            rW[t2, c] += s_w
     # training least squares, Schur complement on the gain column
     a0 = rr[0]
     cGb = 0.0
@@ -170,19 +185,19 @@ def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, Py, ystats, 
 
 
 @numba.njit(cache=True, parallel=True)
-def score_batch(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, Py, ystats, G2, Ginv, GinvWy,
-                out):
+def score_batch(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats, G2,
+                Ginv, GinvWy, out):
     """Score a batch of candidates in parallel (see :func:`score_serial`)."""
     n = u.shape[0]
     for i in numba.prange(P.shape[0]):
         r = np.empty(n)
-        _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, Py, ystats, G2, Ginv,
-                   GinvWy, out, r)
+        _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats,
+                   G2, Ginv, GinvWy, out, r)
 
 
 @numba.njit(cache=True)
-def score_serial(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, Py, ystats, G2, Ginv, GinvWy,
-                 out):
+def score_serial(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats, G2,
+                 Ginv, GinvWy, out):
     """Score a batch of candidate chains, one after the other.
 
     Parameters (all float64 unless noted)
@@ -197,6 +212,10 @@ def score_serial(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, Py, ystats, G
          ``qa**j`` (all ones for an integrator)
     WT : (2, p, n) projected fixed columns (load terms), per set (zero
          outside the set's segments)
+    qW : (ns, p) per segment, the sum of ``qv * W`` (zero for projected
+         columns)
+    anchored : bool, re-initialise at the measured first PV of each segment
+         (else at the best initial state: projection)
     Py : (n,) projected PV
     ystats : (2, 1 + p) per set: [yy, Wy_0..Wy_p-1]
     G2 : (2, p, p) Gram matrices of the fixed columns per set
@@ -209,8 +228,8 @@ def score_serial(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, Py, ystats, G
     """
     r = np.empty(u.shape[0])
     for i in range(P.shape[0]):
-        _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, Py, ystats, G2, Ginv,
-                   GinvWy, out, r)
+        _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats,
+                   G2, Ginv, GinvWy, out, r)
 
 
 @numba.njit(cache=True)

@@ -204,7 +204,8 @@ class ModelFit:
     fit_pct : float
         Held-out fit ``100 (1 - |e| / |y0|)`` [%], ``y0`` the PV with each
         segment's mean removed (the error of a model that predicts a
-        constant PV per segment), as MATLAB's ``compare`` but per segment.
+        constant PV per segment), as MATLAB's ``compare`` but per segment;
+        with ``reinit='measured'``, minus each segment's first value.
     fit_pct_train : float
         The same on the training blocks [%].
     heldout_rmse, train_rmse : float
@@ -381,8 +382,9 @@ def _fmt(v):
 
 
 def _segment_demeaned(d: LoopData) -> np.ndarray:
-    """PV minus its mean in each scored segment (0 elsewhere)."""
-    key = "pv_demeaned"
+    """PV minus its mean (or, re-initialised at the measured PV, minus its
+    first value) in each scored segment; 0 elsewhere."""
+    key = "pv_reference"
     if key not in d._cache:
         ss = d.sample_set
         use = ss >= 0
@@ -390,8 +392,11 @@ def _segment_demeaned(d: LoopData) -> np.ndarray:
         s = sid[use]
         nseg = d.seg_start.size
         y = np.where(use, np.nan_to_num(d.pv), 0.0)
-        cnt = np.maximum(np.bincount(s, minlength=nseg), 1)
-        m = np.bincount(s, weights=y[use], minlength=nseg) / cnt
+        if d.reinit == "measured":
+            m = y[d.seg_start]
+        else:
+            cnt = np.maximum(np.bincount(s, minlength=nseg), 1)
+            m = np.bincount(s, weights=y[use], minlength=nseg) / cnt
         d._cache[key] = np.where(use, y - m[np.maximum(sid, 0)], 0.0)
     return d._cache[key]
 
