@@ -171,9 +171,9 @@ class LoopData:
         -------
         matplotlib.axes.Axes
         """
-        import matplotlib.pyplot as plt
-
         if ax is None:
+            import matplotlib.pyplot as plt
+
             _, ax = plt.subplots(figsize=(9, 3))
         _shade_heldout(ax, self)
         ax.plot(self.t, self.pv, color="C0", lw=0.8, label="PV")

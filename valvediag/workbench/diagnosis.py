@@ -144,11 +144,11 @@ class Diagnosis:
         -------
         matplotlib.axes.Axes
         """
-        import matplotlib.pyplot as plt
-
         if view not in self.VIEWS:
             raise ValueError(f"view must be one of {self.VIEWS}, not {view!r}")
         if ax is None:
+            import matplotlib.pyplot as plt
+
             _, ax = plt.subplots(figsize=(9, 3) if view == "residual" else (5, 3))
         if view == "residual":
             if fit is not None:

@@ -299,9 +299,9 @@ class ModelFit:
         -------
         matplotlib.axes.Axes
         """
-        import matplotlib.pyplot as plt
-
         if ax is None:
+            import matplotlib.pyplot as plt
+
             _, ax = plt.subplots(figsize=(9, 3.2))
         _shade_heldout(ax, self.data)
         sl = _window(self.t, window)
@@ -333,9 +333,9 @@ class ModelFit:
         -------
         list of matplotlib.axes.Axes
         """
-        import matplotlib.pyplot as plt
-
         if axes is None:
+            import matplotlib.pyplot as plt
+
             _, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
         sl = _window(self.t, window)
         t = self.t[sl]

@@ -32,11 +32,8 @@ _RC = {"svg.hashsalt": "valvediag-workbench", "svg.fonttype": "none", "font.size
 
 def _svg(fig) -> str:
     """A figure as a base64 ``data:`` URI of deterministic SVG."""
-    import matplotlib.pyplot as plt
-
     buf = io.BytesIO()
     fig.savefig(buf, format="svg", metadata={"Date": None, "Creator": None}, bbox_inches="tight")
-    plt.close(fig)
     return "data:image/svg+xml;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
@@ -56,16 +53,19 @@ def _params(fit) -> list[tuple[str, str]]:
 
 def _figures(ladder: ErrorLadder) -> dict:
     import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    def subplots(*args, figsize, **kw):
+        # figures without pyplot: no global state, no backend switch
+        fig = Figure(figsize=figsize)
+        return fig, fig.subplots(*args, **kw)
 
     first, final = ladder.first, ladder.final
     diag0 = ladder.steps[0].suggestions.diagnosis if ladder.steps[0].suggestions else first.diagnose()
     diag1 = ladder.steps[-1].suggestions.diagnosis if ladder.steps[-1].suggestions else final.diagnose()
     figs = {}
     with matplotlib.rc_context(_RC):
-        fig, ax = plt.subplots(figsize=(9, 3.2))
+        fig, ax = subplots(figsize=(9, 3.2))
         final.plot(ax, other=first if final is not first else None)
         figs["overlay"] = _svg(fig)
         # a close-up of about three periods in the middle of the record
@@ -73,27 +73,27 @@ def _figures(ladder: ErrorLadder) -> dict:
         T = d.period if math.isfinite(d.period) else 40 * d.horizon * d.sample_time
         mid = d.t[(d.seg_start[len(d.seg_start) // 2])]
         win = (mid - 1.5 * T, mid + 1.5 * T)
-        fig, ax = plt.subplots(figsize=(9, 3.2))
+        fig, ax = subplots(figsize=(9, 3.2))
         final.plot(ax, other=first if final is not first else None, window=win)
         figs["overlay_zoom"] = _svg(fig)
-        fig, axes = plt.subplots(3, 1, figsize=(9, 6.5), sharex=True)
+        fig, axes = subplots(3, 1, figsize=(9, 6.5), sharex=True)
         final.plot_chain(axes, window=win)
         figs["chain"] = _svg(fig)
         for key, dg, ft in (("start", diag0, first), ("final", diag1, final)):
-            fig, ax = plt.subplots(figsize=(9, 2.6))
+            fig, ax = subplots(figsize=(9, 2.6))
             dg.plot("residual", ax, fit=ft)
             figs[f"resid_{key}"] = _svg(fig)
-            fig, axs = plt.subplots(1, 3, figsize=(10.5, 2.8))
+            fig, axs = subplots(1, 3, figsize=(10.5, 2.8))
             dg.plot("acf", axs[0])
             dg.plot("ccf", axs[1])
             dg.plot("reversals", axs[2])
             fig.tight_layout()
             figs[f"corr_{key}"] = _svg(fig)
-        fig, ax = plt.subplots(figsize=(6, 3))
+        fig, ax = subplots(figsize=(6, 3))
         ladder.plot(ax)
         figs["ladder"] = _svg(fig)
         if ladder.steps[0].suggestions is not None:
-            fig, ax = plt.subplots(figsize=(6, 0.35 * len(ladder.steps[0].suggestions.items) + 1.3))
+            fig, ax = subplots(figsize=(6, 0.35 * len(ladder.steps[0].suggestions.items) + 1.3))
             ladder.steps[0].suggestions.plot(ax)
             figs["candidates"] = _svg(fig)
     return figs

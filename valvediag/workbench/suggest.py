@@ -334,9 +334,9 @@ class Suggestions:
         -------
         matplotlib.axes.Axes
         """
-        import matplotlib.pyplot as plt
-
         if ax is None:
+            import matplotlib.pyplot as plt
+
             _, ax = plt.subplots(figsize=(6, 0.4 * len(self.items) + 1.2))
         names = [f"+ {s.effect}" for s in self.items][::-1]
         vals = [s.heldout_rmse for s in self.items][::-1]
@@ -505,9 +505,9 @@ class ErrorLadder:
         -------
         matplotlib.axes.Axes
         """
-        import matplotlib.pyplot as plt
-
         if ax is None:
+            import matplotlib.pyplot as plt
+
             _, ax = plt.subplots(figsize=(6, 3))
         rows = self.rows()
         x = np.arange(len(rows))
