@@ -71,7 +71,8 @@ class Effect:
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect("deadband", "valve",
-           (Param("DB", "OP unit", "0 to band_max (60 % of the OP's 1-99 % range)", "searched",
+           (Param("DB", "OP unit", "0 to band_max (1.5 x the median OP swing between reversals, at most "
+                  "1.1 x the OP's 1-99 % range)", "searched",
                   "dead band (backlash) width: after a reversal the valve rests until the OP has "
                   "crossed DB, then follows it DB/2 behind"),),
            "Backlash of total width DB (Hägglund 2007); no jump.",
@@ -93,9 +94,11 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "The valve stroke ends before the OP range does: the position is held at its stops.",
            "error only while the OP is near a limit"),
     Effect("dead_time", "delay",
-           (Param("dead_time", "s", "0 to 30 % of the OP period, whole samples", "searched",
+           (Param("dead_time", "s", "0 to 30 % of the OP period (at most 300 samples or two horizons), "
+                  "fractional samples", "searched",
                   "transport delay between valve and PV"),),
-           "Pure delay of the valve position by whole samples.",
+           "Pure delay of the valve position; a fraction of a sample interpolates linearly "
+           "(exact for the integral of a held input).",
            "residual-OP cross-correlation peaking at the dead time"),
     Effect("lag", "lag",
            (Param("lag", "s", "sample time/2 to half the OP period", "searched",
@@ -110,8 +113,9 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "(S-J)/2 offset, so it is fitted jointly with the valve.",
            "a constant rate error: the residual ramps within every segment"),
     Effect("drift", "load",
-           (Param("drift", "PV unit/s per s (integrating)", "unbounded", "linear",
-                  "slope of the load ramp (rate error growing with time)"),
+           (Param("drift", "PV unit/s^2 (integrating) or PV unit/s (self-regulating)", "unbounded", "linear",
+                  "mean slope of the fitted load over the record (reported; -drift/gain is the load "
+                  "ramp in OP unit/s)"),
             Param("drift_knots", "-", "fixed (default 3)", "linear",
                   "interior knots of the piecewise-linear load; one slope change each")),
            "Slowly varying unmeasured load: a ramp plus a piecewise-linear random walk with a "

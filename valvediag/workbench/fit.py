@@ -253,10 +253,9 @@ class Problem:
             jj = np.flatnonzero(use) - self.data.seg_start[sid]
             for c in range(self.p):
                 qW[:, c] = np.bincount(sid, weights=qv[jj] * W[use, c], minlength=nseg)
-        st = dict(qa=qa, qv=qv, qW=qW, Py=Py, W=W, WT=np.ascontiguousarray(np.stack([(W * (self.sample_set == s)[:, None]).T
-                                                                 for s in (0, 1)])), ystats=ystats, G2=G2,
-                  Ginv=Ginv,
-                  GinvWy=Ginv @ ystats[0, 1:] if self.p else np.zeros(0))
+        WT = np.stack([(W * (self.sample_set == s)[:, None]).T for s in (0, 1)])
+        st = dict(qa=qa, qv=qv, qW=qW, Py=Py, W=W, WT=np.ascontiguousarray(WT), ystats=ystats,
+                  G2=G2, Ginv=Ginv, GinvWy=Ginv @ ystats[0, 1:] if self.p else np.zeros(0))
         if len(self._setups) > 64:
             self._setups.clear()
         self._setups[key] = st
@@ -309,9 +308,9 @@ class Problem:
             P = np.ascontiguousarray(np.array([self.row(thetas[i]) for i in idx]))
             o = np.empty((len(idx), 3 + self.p))
             fn = kernels.score_batch if len(idx) >= 4 else kernels.score_serial
-            fn(self.u, self.vcode, P, d.seg_start, d.seg_end, d.seg_set,
-                                st["qv"], st["WT"], st["qW"], self.anchored, st["Py"], st["ystats"], st["G2"], st["Ginv"],
-                                st["GinvWy"], o)
+            fn(self.u, self.vcode, P, d.seg_start, d.seg_end, d.seg_set, st["qv"], st["WT"],
+               st["qW"], self.anchored, st["Py"], st["ystats"], st["G2"], st["Ginv"],
+               st["GinvWy"], o)
             out[idx] = o
             self.n_evals += len(idx)
         return out

@@ -66,9 +66,10 @@ class LoopModel:
     them as a pair.
 
     The chain is: OP -> valve (dead band or stiction, then saturation) ->
-    dead time (whole samples) -> first-order lag -> plant input minus load
-    (bias + drift) -> plant -> PV. The load enters after the lag; for a
-    constant or slowly varying load that is the same as before it.
+    dead time (fractional samples interpolate) -> first-order lag -> plant
+    input minus load (bias + drift) -> plant -> PV. The load enters after
+    the lag; for a constant or slowly varying load that is the same as
+    before it.
 
     References
     ----------
