@@ -3,10 +3,17 @@ The nightly plant scan as a Prefect flow: ``nightly-scan``.
 
 The flow only orchestrates; every step is a :mod:`valvediag` function::
 
+    (scan lock)     valvediag.scanlock.ScanLock: one scan per store, held by the flow process
     read-registry   valvediag.registry.read_loops_csv
-    ingest          valvediag.ingest.ingest_exports (+ Store.replace_loops)   retries 2
+    ingest          Store.abort_stale_runs, valvediag.ingest.ingest_exports
+                    (+ Store.replace_loops)                                   retries 2
     plan            valvediag.scan.plan_loops (+ Store.start_run: status 'running')
     analyse-loop    valvediag.scan.load_loop_frames + analyse_loop, one mapped task per loop
+                    (thread pool of the flow process), or, with ``workers`` or
+                    ``dask_address``:
+    export-partitions  valvediag.partition.export_partitions: each loop's window to Parquet
+    analyse-partition  valvediag.partition.load_partition_frames + analyse_loop, one task
+                    per loop on Dask (prefect-dask's DaskTaskRunner)
     rank            valvediag.scan.rank_results
     persist         valvediag.scan.persist_results: the only task that writes results
     write-outputs   valvediag.outputs.write_outputs: verdicts.json, work_orders.csv, report.html
@@ -20,16 +27,30 @@ in-process and shows progress through :func:`progress_to`.
 Notes
 -----
 DuckDB lets one process hold the store for writing. Every task opens the
-store, works and closes it; all of them run in the flow's process (the
-mapped analyses in its thread pool, where each reads its loop with its own
-read-only connection), and only ``ingest``, ``plan``, ``persist`` and
-``finish-run`` write, one at a time.
+store, works and closes it; only ``ingest``, ``plan``, ``persist`` and
+``finish-run`` write, one at a time, in the flow's process. Without Dask the
+mapped analyses run in the flow process's thread pool, each reading its loop
+with its own read-only connection. With Dask the workers never open the
+DuckDB file: they read the Parquet partitions that ``export-partitions``
+wrote (on a real cluster, ``partitions`` must be a directory every worker
+can read) and return their results to the flow.
+
+Faults: the flow holds the store's scan lock for the whole run, so a second
+scan on the same store waits ``wait_s`` seconds and then fails with a
+one-line :class:`~valvediag.scanlock.ScanLockedError`. A scan whose process
+died (SIGKILL, crash) releases the lock with its process; the next scan
+marks its run ``aborted`` and deletes its partitions. An ingest interrupted
+midway is completed by the next one (files are recorded only once fully
+written, and samples are never duplicated). A Dask worker that dies during
+a loop is replaced by its nanny and Dask runs the loop again on a live
+worker (up to ``distributed.scheduler.allowed-failures`` times).
 """
 from __future__ import annotations
 
 import contextlib
 import datetime as dt
 import os
+import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
@@ -41,9 +62,12 @@ from prefect.utilities.annotations import unmapped
 
 from valvediag.ingest import expand_paths, ingest_exports
 from valvediag.outputs import write_outputs
+from valvediag.partition import (export_partitions, load_partition_frames, partition_dir,
+                                 remove_partitions)
 from valvediag.registry import LoopSpec, read_loops_csv
 from valvediag.scan import (LoopJob, LoopResult, ScanConfig, analyse_loop, load_loop_frames,
                             persist_results, plan_loops, rank_results)
+from valvediag.scanlock import ScanLock, owner_id
 from valvediag.store import VERDICTS, Store, StoreLockedError
 
 __all__ = ["nightly_scan", "progress_to", "FLOW_NAME", "TABLE_ARTIFACT_KEY",
@@ -103,8 +127,13 @@ def read_registry(loops_csv: str) -> tuple[list[LoopSpec], list[str]]:
 
 @task(name="ingest", retries=2, retry_delay_seconds=10, retry_condition_fn=_transient,
       cache_policy=NO_CACHE)
-def ingest(db: str, exports: list[str], loops: list[LoopSpec], timezone: str | None) -> dict:
+def ingest(db: str, exports: list[str], loops: list[LoopSpec], timezone: str | None,
+           partitions: str | None = None) -> dict:
     """Ingest the exports into the store and replace its loop registry.
+
+    Runs left ``running`` by a scan that died are marked ``aborted`` first
+    (the flow holds the scan lock, so their scans are gone) and their
+    partitions are deleted.
 
     Returns
     -------
@@ -123,6 +152,7 @@ def ingest(db: str, exports: list[str], loops: list[LoopSpec], timezone: str | N
         raise FileNotFoundError(f"no export file matches {', '.join(exports)}")
     _report("ingest", 0, len(files))
     with Store(db) as store:
+        _abort_stale(store, db, partitions, logger)
         report = ingest_exports(store, exports, timezone=timezone,
                                 progress=lambda done, total, _path: _report("ingest", done, total))
         store.replace_loops(loops)
@@ -134,6 +164,13 @@ def ingest(db: str, exports: list[str], loops: list[LoopSpec], timezone: str | N
     return {"files": report.files, "rows_inserted": report.rows_inserted,
             "rows_skipped_duplicate": report.rows_skipped_duplicate,
             "rows_quarantined": report.rows_quarantined, "errors": list(report.errors)}
+
+
+def _abort_stale(store: Store, db: str, partitions: str | None, logger) -> None:
+    for run in store.abort_stale_runs():
+        logger.warning("run %s of %s was left running by a scan that died (%s); marked aborted",
+                       run["run_id"], db, run["owner"] or "owner unknown")
+        remove_partitions(partition_dir(db, run["run_id"], partitions))
 
 
 @task(name="plan", cache_policy=NO_CACHE)
@@ -150,7 +187,7 @@ def plan(db: str, loops: list[LoopSpec], config: ScanConfig, exports: list[str]
         jobs = plan_loops(store, loops, config)
         run_id = store.start_run(window_start=min((j.start for j in jobs), default=None),
                                  window_end=max((j.end for j in jobs), default=None),
-                                 exports=exports, params=config.to_json())
+                                 exports=exports, params=config.to_json(), owner=owner_id())
     get_run_logger().info("run %s: %d loops to analyse", run_id, len(jobs))
     return run_id, jobs
 
@@ -160,6 +197,57 @@ def plan(db: str, loops: list[LoopSpec], config: ScanConfig, exports: list[str]
 def analyse(db: str, job: LoopJob, config: ScanConfig) -> LoopResult:
     """One loop: read its samples (read-only) and diagnose them (pure numerics)."""
     return analyse_loop(job, load_loop_frames(db, job), config)
+
+
+@task(name="export-partitions", retries=1, retry_delay_seconds=5,
+      retry_condition_fn=_transient, cache_policy=NO_CACHE)
+def export(db: str, run_id: str, jobs: list[LoopJob], partitions: str | None) -> list[str]:
+    """Export every loop's window to Parquet for the Dask workers; one path per job."""
+    out = partition_dir(db, run_id, partitions)
+    with Store(db, read_only=True) as store:
+        paths = export_partitions(store, jobs, out)
+    get_run_logger().info("exported %d loops to %s", len(jobs), out)
+    return paths
+
+
+@task(name="analyse-partition", retries=1, retry_delay_seconds=2, cache_policy=NO_CACHE,
+      task_run_name="analyse-{job.spec.loop}")
+def analyse_partition(path: str, job: LoopJob, config: ScanConfig) -> LoopResult:
+    """One loop on a Dask worker: read its Parquet partition and diagnose it."""
+    return analyse_loop(job, load_partition_frames(path, job), config)
+
+
+def _dask_runner(workers: int | None, dask_address: str | None):
+    """A DaskTaskRunner: the cluster at ``dask_address``, else a LocalCluster of
+    ``workers`` single-threaded worker processes."""
+    from prefect_dask import DaskTaskRunner
+
+    if dask_address:
+        return DaskTaskRunner(address=dask_address)
+    return DaskTaskRunner(cluster_class="distributed.LocalCluster",
+                          cluster_kwargs={"n_workers": int(workers), "threads_per_worker": 1,
+                                          "processes": True, "dashboard_address": ":0"})
+
+
+def _analyse_on_dask(db: str, run_id: str, jobs: list[LoopJob], config: ScanConfig,
+                     workers: int | None, dask_address: str | None,
+                     partitions: str | None) -> list[LoopResult]:
+    """Export the partitions, then run one ``analyse-partition`` task per loop on Dask."""
+    paths = export(db, run_id, jobs, partitions)
+    with _dask_runner(workers, dask_address) as runner:
+        futures = runner.map(analyse_partition, {"path": paths, "job": jobs,
+                                                 "config": unmapped(config)})
+        _report("analyse", 0, len(jobs))
+        pending, done = list(futures), 0
+        while pending:
+            still = [f for f in pending if not f.wrapped_future.done()]
+            if len(still) < len(pending):
+                done += len(pending) - len(still)
+                _report("analyse", done, len(jobs))
+            else:
+                time.sleep(0.1)
+            pending = still
+        return [f.result() for f in futures]
 
 
 @task(name="rank", cache_policy=NO_CACHE)
@@ -255,7 +343,9 @@ def nightly_scan(exports: str | list[str] = "data/exports", loops: str = "data/l
                  db: str = "data/valvediag.duckdb", out: str = "out/nightly",
                  window_hours: float = 24.0, method: str = "robust", min_cycles: float = 3.0,
                  timezone: str | None = None, end: dt.datetime | None = None,
-                 max_gap_s: float | None = None) -> dict:
+                 max_gap_s: float | None = None, workers: int | None = None,
+                 dask_address: str | None = None, partitions: str | None = None,
+                 wait_s: float = 0.0) -> dict:
     """Scan every loop of the registry and write the maintenance report.
 
     Parameters
@@ -282,6 +372,20 @@ def nightly_scan(exports: str | list[str] = "data/exports", loops: str = "data/l
         Common end of every loop's window (with a UTC offset).
     max_gap_s : float, optional
         Longest gap bridged by interpolation [s]; default per tag.
+    workers : int, optional
+        Analyse on a local Dask cluster of this many single-threaded worker
+        processes. Default (None or 0): threads of the flow process.
+    dask_address : str, optional
+        Analyse on the Dask cluster whose scheduler is at this address
+        (``tcp://host:8786``); overrides ``workers``. Its workers need
+        valvediag installed and read access to ``partitions``.
+    partitions : str, optional
+        Directory for the Parquet partitions the Dask workers read (a run
+        gets a subdirectory, deleted at its end). Default
+        ``<db>.partitions`` beside the store.
+    wait_s : float, default 0
+        Longest wait for another scan of the same store to finish [s]; then
+        the flow fails with a one-line error.
 
     Returns
     -------
@@ -300,18 +404,39 @@ def nightly_scan(exports: str | list[str] = "data/exports", loops: str = "data/l
                         min_cycles=min_cycles, timezone=timezone, max_gap_s=max_gap_s)
     exports = [exports] if isinstance(exports, str) else list(exports)
     db, out, loops_csv = (os.path.abspath(p) for p in (db, out, loops))
+    partitions = os.path.abspath(partitions) if partitions else None
+    distributed = bool(dask_address) or bool(workers)
+    if workers is not None and int(workers) < 0:
+        raise ValueError(f"workers must be >= 0, not {workers}")
+    logger.info("exports %s; loops %s; store %s; out %s; analysis on %s", ", ".join(exports),
+                loops_csv, db, out, dask_address or (f"{workers} Dask workers" if workers
+                                                     else "threads"))
+    files, _ = expand_paths(exports)    # before the store or its lock is created
+    if not files:
+        raise FileNotFoundError(f"no export file matches {', '.join(exports)}")
     Path(db).parent.mkdir(parents=True, exist_ok=True)
-    logger.info("exports %s; loops %s; store %s; out %s", ", ".join(exports), loops_csv, db, out)
+    with ScanLock(db, timeout=wait_s):
+        return _scan(logger, config, exports, loops_csv, db, out, distributed, workers,
+                     dask_address, partitions)
 
+
+def _scan(logger, config, exports, loops_csv, db, out, distributed, workers, dask_address,
+          partitions) -> dict:
+    """The flow's steps, run while holding the store's scan lock."""
     specs, problems = read_registry(loops_csv)
-    ingested = ingest(db, exports, specs, config.timezone)
+    ingested = ingest(db, exports, specs, config.timezone, partitions)
     run_id, jobs = plan(db, specs, config, exports)
     try:
-        futures = analyse.map(unmapped(db), jobs, unmapped(config))
-        _report("analyse", 0, len(jobs))
-        for done, _ in enumerate(as_completed(list(futures)), 1):
-            _report("analyse", done, len(jobs))
-        ranked = rank([f.result() for f in futures])
+        if distributed:
+            results = _analyse_on_dask(db, run_id, jobs, config, workers, dask_address,
+                                       partitions)
+        else:
+            futures = analyse.map(unmapped(db), jobs, unmapped(config))
+            _report("analyse", 0, len(jobs))
+            for done, _ in enumerate(as_completed(list(futures)), 1):
+                _report("analyse", done, len(jobs))
+            results = [f.result() for f in futures]
+        ranked = rank(results)
         new_faults = persist(db, run_id, ranked)
         run_info = {"db": db, "loops_csv": loops_csv, "exports": exports,
                     "window_start": min((j.start for j in jobs), default=None),
@@ -322,11 +447,15 @@ def nightly_scan(exports: str | list[str] = "data/exports", loops: str = "data/l
         paths = outputs(ranked, out, run_id, run_info)
         artifacts(ranked, paths, run_id, new_faults)
         finish(db, run_id, "complete")
-    except BaseException:
+    except BaseException as exc:
         logger.error("run %s failed; marking it failed in %s", run_id, db)
         with Store(db) as store:
-            store.finish_run(run_id, "failed")
+            store.finish_run(run_id, "failed", note=" ".join(str(exc).split())[:500] or
+                             type(exc).__name__)
         raise
+    finally:
+        if distributed:
+            remove_partitions(partition_dir(db, run_id, partitions))
     return {"run_id": run_id, "loops": len(ranked), "counts": _counts(ranked),
             "new_faults": new_faults, "outputs": paths, "ingest": ingested,
             "registry_problems": problems}

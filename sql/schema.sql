@@ -54,16 +54,21 @@ CREATE TABLE IF NOT EXISTS loops (
     issues        VARCHAR[]
 );
 
--- One row per scan. Only status 'complete' counts as history.
+-- One row per scan. Only status 'complete' counts as history. 'aborted': the scan's process
+-- died (found by the next scan, which holds the store's scan lock; see valvediag.scanlock).
+-- owner is pid@host of the scan's process, note says why a run failed or was aborted.
+-- (A store made before owner/note existed is migrated on open: sql/runs_migrate.sql.)
 CREATE TABLE IF NOT EXISTS runs (
     run_id        VARCHAR PRIMARY KEY,
     started_at    TIMESTAMPTZ NOT NULL,
     finished_at   TIMESTAMPTZ,
-    status        VARCHAR NOT NULL CHECK (status IN ('running', 'complete', 'failed')),
+    status        VARCHAR NOT NULL CHECK (status IN ('running', 'complete', 'failed', 'aborted')),
     window_start  TIMESTAMPTZ,
     window_end    TIMESTAMPTZ,
     exports       VARCHAR,
-    params        JSON
+    params        JSON,
+    owner         VARCHAR,
+    note          VARCHAR
 );
 
 -- Oscillation episodes found by a run.

@@ -1,5 +1,22 @@
 import os
 
+import pytest
+
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 os.environ.setdefault("DO_NOT_TRACK", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+@pytest.fixture(scope="session")
+def prefect_api():
+    """One temporary Prefect server for every flow run of the session; yields its API URL.
+
+    In-process flows use it through Prefect's settings; subprocesses (a
+    ``valvediag scan`` started by a test, Dask workers) get it as
+    ``PREFECT_API_URL`` in their environment.
+    """
+    from prefect.settings import PREFECT_API_URL
+    from prefect.testing.utilities import prefect_test_harness
+
+    with prefect_test_harness(server_startup_timeout=180):
+        yield PREFECT_API_URL.value()

@@ -1,6 +1,6 @@
 """The nightly-scan flow run in-process (the path ``valvediag scan`` takes), and the command.
 
-One temporary Prefect server for the session (``prefect_test_harness``); a
+One temporary Prefect server for the session (``prefect_api`` in conftest.py); a
 tiny synthetic plant (8 loops, 3 h at 10 s). The deployment path (server,
 worker, ``prefect deployment run``) is tested in ``test_deployment.py``.
 """
@@ -27,15 +27,6 @@ from valvediag.synthplant import synth_plant  # noqa: E402
 
 N_LOOPS, DAYS, SAMPLE_TIME, SEED = 8, 0.125, 10.0, 11
 CONSOLE_LEVEL = "PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL"
-
-
-@pytest.fixture(scope="session")
-def prefect_api():
-    """One temporary Prefect server for every in-process flow run of the session."""
-    from prefect.testing.utilities import prefect_test_harness
-
-    with prefect_test_harness(server_startup_timeout=180):
-        yield
 
 
 @pytest.fixture(scope="module")

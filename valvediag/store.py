@@ -68,6 +68,12 @@ _SAMPLE_FRAME_SCHEMA = {"ts": pl.Datetime("us", "UTC"), "value": pl.Float64, "st
 _HELD_ROLES = ("sp", "mode")
 
 
+def _key_bounds(samples: pl.DataFrame) -> dict:
+    """Bounds of the (tag, ts) keys of incoming samples, for zone-map pruning."""
+    return {"ts_min": samples["ts"].min(), "ts_max": samples["ts"].max(),
+            "tag_min": samples["tag"].min(), "tag_max": samples["tag"].max()}
+
+
 class StoreLockedError(RuntimeError):
     """The database file is held by another process."""
 
@@ -184,6 +190,9 @@ class Store:
         self.con.execute("SET TimeZone = 'UTC'")
         if not read_only:
             self.con.execute(load_sql("schema"))
+            if not self.con.execute(load_sql("runs_has_owner")).fetchall()[0][0]:
+                with self.transaction():       # a store older than runs.owner/note
+                    self.con.execute(load_sql("runs_migrate"))
 
     # -- plumbing ----------------------------------------------------------
     def close(self) -> None:
@@ -263,16 +272,14 @@ class Store:
             return pl.DataFrame(schema={"source_line": pl.Int64, "tag": pl.String,
                                         "stored_file": pl.String, "stored_line": pl.Int64})
         with self._registered("incoming_samples", samples):
-            return self.query("samples_conflicting", ts_min=samples["ts"].min(),
-                              ts_max=samples["ts"].max())
+            return self.query("samples_conflicting", **_key_bounds(samples))
 
     def insert_new_samples(self, samples: pl.DataFrame) -> int:
         """Insert samples whose (tag, ts) is not stored yet; return how many [rows]."""
         if samples.is_empty():
             return 0
         with self._registered("incoming_samples", samples):
-            return int(self._run("samples_insert_new", ts_min=samples["ts"].min(),
-                                 ts_max=samples["ts"].max()) or 0)
+            return int(self._run("samples_insert_new", **_key_bounds(samples)) or 0)
 
     def insert_quarantine(self, rows: pl.DataFrame) -> int:
         """Add quarantine rows (``source_file, line, raw, reason``); return new rows."""
@@ -422,7 +429,8 @@ class Store:
     def start_run(self, *, window_start: dt.datetime | None = None,
                   window_end: dt.datetime | None = None,
                   exports: str | Sequence[str] | None = None,
-                  params: Mapping | None = None, run_id: str | None = None) -> str:
+                  params: Mapping | None = None, run_id: str | None = None,
+                  owner: str | None = None) -> str:
         """Register a scan with status ``running``; return its run id.
 
         Parameters
@@ -435,6 +443,8 @@ class Store:
             Scan parameters, stored as JSON (NaN -> null).
         run_id : str, optional
             Default ``<UTC time>-<8 hex>``, which sorts by time.
+        owner : str, optional
+            Who runs the scan, e.g. ``pid@host`` (:func:`valvediag.scanlock.owner_id`).
         """
         if run_id is None:
             now = dt.datetime.now(dt.timezone.utc)
@@ -443,7 +453,7 @@ class Store:
             exports = ";".join(os.fspath(e) for e in exports)
         self._run("run_start", run_id=run_id, window_start=_aware(window_start, "window_start"),
                   window_end=_aware(window_end, "window_end"), exports=exports,
-                  params=_to_json(params or {}))
+                  params=_to_json(params or {}), owner=owner)
         return run_id
 
     def run(self, run_id: str) -> dict:
@@ -468,20 +478,46 @@ class Store:
         """All runs, oldest first."""
         return self.query("runs_all")
 
-    def finish_run(self, run_id: str, status: str = "complete") -> None:
-        """Mark a run ``complete`` or ``failed`` and stamp ``finished_at``.
+    def finish_run(self, run_id: str, status: str = "complete", note: str | None = None
+                   ) -> None:
+        """Mark a run ``complete``, ``failed`` or ``aborted`` and stamp ``finished_at``.
 
         Parameters
         ----------
         run_id : str
             The run (KeyError when unknown).
-        status : {"complete", "failed"}
+        status : {"complete", "failed", "aborted"}
             Only complete runs count as history.
+        note : str, optional
+            Why it failed or was aborted (one line).
         """
-        if status not in ("complete", "failed"):
-            raise ValueError(f"run status must be 'complete' or 'failed', not {status!r}")
+        if status not in ("complete", "failed", "aborted"):
+            raise ValueError(f"run status must be 'complete', 'failed' or 'aborted', "
+                             f"not {status!r}")
         self.run(run_id)
-        self._run("run_finish", run_id=run_id, status=status)
+        self._run("run_finish", run_id=run_id, status=status, note=note)
+
+    def abort_stale_runs(self, note: str = "the scan's process died before the run finished"
+                         ) -> list[dict]:
+        """Mark every run still ``running`` as ``aborted``; return them.
+
+        Call this only while holding the store's scan lock
+        (:class:`valvediag.scanlock.ScanLock`): then no other scan is alive, so
+        a run still ``running`` belongs to a scan whose process died (killed,
+        crashed, power lost) and will never finish it.
+
+        Parameters
+        ----------
+        note : str
+            Stored in the runs' ``note``.
+
+        Returns
+        -------
+        list of dict
+            ``run_id`` and ``owner`` of each run aborted.
+        """
+        rows = self.con.execute(load_sql("runs_abort_stale"), {"note": note}).fetchall()
+        return [{"run_id": r[0], "owner": r[1]} for r in rows]
 
     def write_results(self, run_id: str, episodes=None, verdicts=None) -> None:
         """Write a run's episodes and verdicts in one transaction.
@@ -551,6 +587,27 @@ class Store:
             Loop name.
         """
         return self.query("verdict_history", loop=loop)
+
+    def history_before(self, run_id: str, max_runs: int = 60) -> pl.DataFrame:
+        """Every loop's verdicts in the latest complete runs before ``run_id``.
+
+        Parameters
+        ----------
+        run_id : str
+            The run to compare (it may still be running, or be unknown: then
+            every complete run counts). Its own verdicts are not included.
+        max_runs : int
+            Most recent complete runs returned [-].
+
+        Returns
+        -------
+        polars.DataFrame
+            ``loop, run_id, started_at, window_end, verdict, confidence, bi,
+            rank``, by loop and time (oldest first).
+        """
+        if max_runs < 1:
+            raise ValueError(f"max_runs must be at least 1, not {max_runs!r}")
+        return self.query("history_before_run", run_id=run_id, max_runs=int(max_runs))
 
     def new_faults(self, run_id: str) -> pl.DataFrame:
         """Loops that are faulty in run ``run_id`` and were not in the latest

@@ -8,6 +8,7 @@ inside the handler.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import json
 import os
@@ -35,6 +36,8 @@ EPILOG = """\
 examples:
   valvediag scan --exports 'historian/*.csv' --loops loops.csv --db plant.duckdb --out out/
   valvediag scan --exports exports/ --loops loops.csv --db plant.duckdb --out out/ --json
+  valvediag scan ... --workers 2                        # local Dask cluster, 2 processes
+  valvediag scan ... --dask-address tcp://10.0.0.5:8786 --partitions /shared/parts
 """
 
 
@@ -66,6 +69,19 @@ def register(sub):
     p.add_argument("--timezone", metavar="TZ",
                    help="IANA time zone of naive time stamps in the exports, e.g. Europe/Berlin "
                         "(time stamps with an offset need none)")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help="analyse the loops on a local Dask cluster of N worker processes "
+                        "(default: threads of this process)")
+    p.add_argument("--dask-address", metavar="ADDRESS",
+                   help="analyse on the Dask cluster whose scheduler is at ADDRESS, e.g. "
+                        "tcp://10.0.0.5:8786 (its workers need valvediag and read access to "
+                        "--partitions)")
+    p.add_argument("--partitions", metavar="DIR",
+                   help="where the per-loop Parquet partitions for Dask workers go (default "
+                        "DB.partitions beside the store; on a cluster, a shared directory)")
+    p.add_argument("--wait", type=float, default=0.0, metavar="SECONDS",
+                   help="wait up to SECONDS for another scan of the same --db to finish "
+                        "(default 0: fail at once with a one-line error)")
     p.add_argument("--json", action="store_true",
                    help="print verdicts.json (every loop, ranked) to stdout instead of a summary")
     p.add_argument("-v", "--verbose", action="store_true",
@@ -109,14 +125,23 @@ def _check_inputs(args):
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise CommandError(f"--out {args.out}: exists and is not a directory")
-    _check_store(args.db)
+    if args.workers is not None and args.workers < 1:
+        raise CommandError(f"--workers {args.workers}: give at least 1 worker")
+    if args.wait < 0 or args.wait != args.wait:
+        raise CommandError(f"--wait {args.wait:g}: give seconds >= 0")
+    if args.dask_address and "://" not in args.dask_address:
+        raise CommandError(f"--dask-address {args.dask_address}: give the scheduler's address "
+                           f"with its protocol, e.g. tcp://10.0.0.5:8786")
+    _check_store(args.db, args.wait)
     return list(args.exports), config
 
 
-def _check_store(db: str) -> None:
-    """Fail early, in one line, when the store cannot be opened for writing."""
+def _check_store(db: str, wait: float = 0.0) -> None:
+    """Fail early, in one line, when another scan holds the store (after waiting up to
+    ``wait`` seconds) or it cannot be opened for writing."""
     import duckdb
 
+    from ..scanlock import ScanLock
     from ..store import Store, StoreLockedError
 
     path = Path(db)
@@ -124,7 +149,8 @@ def _check_store(db: str) -> None:
         raise CommandError(f"--db {db}: is a directory; give a file such as {db}/valvediag.duckdb")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        Store(path).close()
+        with ScanLock(path, timeout=wait):   # the flow takes it again (and waits again)
+            Store(path).close()
     except StoreLockedError as exc:
         raise CommandError(str(exc)) from None
     except (duckdb.Error, OSError) as exc:
@@ -148,6 +174,34 @@ class _StageProgress:
         self.bars[stage](done, total)
 
 
+@contextlib.contextmanager
+def _api_for_workers(args):
+    """Without PREFECT_API_URL, give Dask workers one temporary Prefect server to report to.
+
+    Prefect would otherwise start a temporary server in every worker process
+    (slow, and each on the same SQLite file). The server is started once here
+    and stopped after the run.
+    """
+    if not (args.workers or args.dask_address) or os.environ.get("PREFECT_API_URL"):
+        yield
+        return
+    from prefect.server.api.server import SubprocessASGIServer
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    server = SubprocessASGIServer()
+    server.start(timeout=180)
+    os.environ["PREFECT_API_URL"] = server.api_url     # for the worker processes
+    try:
+        with temporary_settings(updates={PREFECT_API_URL: server.api_url}):
+            yield
+    finally:
+        from prefect.logging.handlers import APILogHandler
+
+        APILogHandler.flush()    # the run's last log lines, before the server goes
+        os.environ.pop("PREFECT_API_URL", None)
+        server.stop()
+
+
 def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
@@ -162,11 +216,13 @@ def run(args) -> int:
         os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "ERROR")
     from pipelines.nightly import nightly_scan, progress_to
 
-    with progress_to(_StageProgress()):
+    with progress_to(_StageProgress()), _api_for_workers(args):
         state = nightly_scan(exports=exports, loops=args.loops, db=args.db, out=args.out,
                              window_hours=config.window_hours, method=config.method,
                              min_cycles=config.min_cycles, timezone=config.timezone,
-                             end=config.end, return_state=True)
+                             end=config.end, workers=args.workers,
+                             dask_address=args.dask_address, partitions=args.partitions,
+                             wait_s=args.wait, return_state=True)
     if not state.is_completed():
         exc = state.result(raise_on_failure=False)
         detail = _one_line(exc) if isinstance(exc, BaseException) else (state.message or state.name)
