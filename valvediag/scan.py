@@ -95,7 +95,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .store import Store
 
 __all__ = [
-    "ScanConfig", "LoopJob", "Episode", "LoopResult", "ScanSummary",
+    "ScanConfig", "LoopJob", "Episode", "LoopTrend", "LoopDetail", "LoopResult", "ScanSummary",
     "plan_loops", "load_loop_frames", "analyse_loop", "rank_results", "persist_results",
     "run_scan", "severity", "ACTION_VERDICTS", "VALVE_FAULTS", "EPISODE_VERDICTS",
 ]
@@ -128,6 +128,10 @@ MIN_RAW_PER_CYCLE = 10.0
 #: Severity: amplitude scale [% of span] and the largest criticality weight.
 AMPLITUDE_SCALE_PCT = 5.0
 MAX_CRITICALITY = 10.0
+#: Buckets of the PV sparkline kept for every loop (min and max of each) [-].
+SPARK_BUCKETS = 48
+#: Buckets of the PV/OP/SP trend kept for a loop needing action (two points each) [-].
+TREND_BUCKETS = 720
 
 _SECOND = dt.timedelta(seconds=1)
 _UTC = dt.timezone.utc
@@ -295,6 +299,183 @@ class Episode:
         return _clean({f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
 
 
+def _bucket_extremes(y: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per bucket of ``k`` points: (first extreme, second extreme) in time order; NaN if empty."""
+    nb = -(-y.size // k)
+    pad = np.full(nb * k, np.nan)
+    pad[:y.size] = y
+    blocks = pad.reshape(nb, k)
+    empty = np.isnan(blocks).all(axis=1)
+    lo_i = np.argmin(np.where(np.isnan(blocks), np.inf, blocks), axis=1)
+    hi_i = np.argmax(np.where(np.isnan(blocks), -np.inf, blocks), axis=1)
+    rows = np.arange(nb)
+    lo, hi = blocks[rows, lo_i], blocks[rows, hi_i]
+    first = np.where(lo_i <= hi_i, lo, hi)
+    second = np.where(lo_i <= hi_i, hi, lo)
+    first[empty] = np.nan
+    second[empty] = np.nan
+    return first, second
+
+
+def _reduce(y: np.ndarray | None, buckets: int) -> np.ndarray | None:
+    """``y`` reduced to two points (its extremes, in time order) per bucket, as float32."""
+    if y is None:
+        return None
+    y = np.asarray(y, dtype=float)
+    k = max(1, -(-y.size // buckets))
+    if k == 1:
+        return y.astype(np.float32)
+    a, b = _bucket_extremes(y, k)
+    return np.column_stack([a, b]).ravel().astype(np.float32)
+
+
+@dataclass(frozen=True)
+class LoopTrend:
+    """A loop's PV, OP and SP over the analysis window, reduced for plotting.
+
+    Every bucket of ``step`` grid points keeps two points: the extremes of the
+    bucket in the order they occur, so a trace drawn through them looks like
+    the full-resolution one (the oscillation's band stays visible). NaN marks
+    invalid data (gaps, bad states), which breaks the drawn line.
+
+    Attributes
+    ----------
+    start : datetime
+        Time of ``t = 0`` (UTC): the grid's first point.
+    t : numpy.ndarray
+        Time of every point since ``start`` [s].
+    pv : numpy.ndarray
+        Process variable [PV unit].
+    op : numpy.ndarray or None
+        Controller output [%].
+    sp : numpy.ndarray or None
+        Set point [PV unit].
+    sample_time : float
+        Spacing of the analysis grid [s].
+    step : int
+        Grid points per bucket (1: not reduced).
+    """
+
+    start: dt.datetime
+    t: np.ndarray = field(repr=False)
+    pv: np.ndarray = field(repr=False)
+    op: np.ndarray | None = field(default=None, repr=False)
+    sp: np.ndarray | None = field(default=None, repr=False)
+    sample_time: float = 1.0
+    step: int = 1
+
+    @classmethod
+    def from_aligned(cls, aligned: AlignedLoop, buckets: int = TREND_BUCKETS) -> LoopTrend:
+        """Reduce an aligned loop to at most ``2 * buckets`` points per signal.
+
+        Parameters
+        ----------
+        aligned : valvediag.align.AlignedLoop
+            The loop on its grid (invalid points NaN).
+        buckets : int
+            Number of buckets [-].
+
+        Returns
+        -------
+        LoopTrend
+        """
+        h = aligned.sample_time
+        k = max(1, -(-aligned.n // buckets))
+        pv = np.where(aligned.role_valid.get("pv", np.isfinite(aligned.pv)), aligned.pv, np.nan)
+        if k == 1:
+            t = np.arange(aligned.n) * h
+        else:
+            nb = -(-aligned.n // k)
+            t = (np.arange(nb)[:, None] * k + np.array([0.25, 0.75]) * k).ravel() * h
+        return cls(start=aligned.start, t=t.astype(np.float64), pv=_reduce(pv, buckets),
+                   op=_reduce(aligned.op, buckets), sp=_reduce(aligned.sp, buckets),
+                   sample_time=h, step=k)
+
+    def times(self) -> np.ndarray:
+        """The points' times as ``datetime64[ms]`` (UTC, naive)."""
+        t0 = np.datetime64(self.start.astimezone(_UTC).replace(tzinfo=None), "ms")
+        return t0 + np.round(self.t * 1e3).astype("timedelta64[ms]")
+
+    def plot(self, ax=None, *, episodes: Sequence[Episode] = (), highlight: int | None = None,
+             op_ax=None):
+        """PV and SP against time, episodes shaded; OP below or on a twin axis.
+
+        Parameters
+        ----------
+        ax : matplotlib.axes.Axes, optional
+            Axes of the PV and SP.
+        episodes : sequence of Episode
+            Oscillating stretches to shade.
+        highlight : int, optional
+            Index into ``episodes`` of the one shaded darker (the one behind
+            the verdict).
+        op_ax : matplotlib.axes.Axes, optional
+            Axes of the OP (e.g. a panel below sharing the time axis);
+            default a twin of ``ax`` with its own scale on the right.
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+            The PV axes.
+        """
+        import matplotlib.dates as mdates
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(10, 3))
+        x = self.times()
+        axes = [ax] if op_ax is None else [ax, op_ax]
+        for j, e in enumerate(episodes):
+            a = np.datetime64(e.start.astimezone(_UTC).replace(tzinfo=None), "ms")
+            b = np.datetime64(e.end.astimezone(_UTC).replace(tzinfo=None), "ms")
+            for k, each in enumerate(axes):
+                each.axvspan(a, b, color="#f8c471" if j == highlight else "#fdf2e0", lw=0,
+                             zorder=0, label="oscillating" if k == 0 and j == 0 else None)
+        ax.plot(x, self.pv, color="#1f5fa8", lw=0.7, label="PV", zorder=3)
+        if self.sp is not None and np.isfinite(self.sp).any():
+            ax.plot(x, self.sp, color="black", lw=0.9, ls="--", label="SP", zorder=4)
+        ax.set_ylabel("PV")
+        if self.op is not None:
+            if op_ax is None:
+                op_ax = ax.twinx()
+            op_ax.plot(x, self.op, color="#d35400", lw=0.6, label="OP")
+            op_ax.set_ylabel("OP [%]")
+        loc = mdates.AutoDateLocator(minticks=3, maxticks=7)
+        ax.xaxis.set_major_locator(loc)
+        ax.xaxis.set_major_formatter(mdates.ConciseDateFormatter(loc, show_offset=False))
+        if x.size:
+            ax.set_xlim(x[0], x[-1])
+        ax.legend(loc="upper left", fontsize=6.5, ncol=3, framealpha=0.8)
+        return ax
+
+
+@dataclass(frozen=True)
+class LoopDetail:
+    """What a report draws for one loop; kept on the result object only.
+
+    Neither :meth:`LoopResult.to_json` nor the store see it: it holds arrays.
+
+    Attributes
+    ----------
+    sparkline : numpy.ndarray or None
+        PV over the window, two points (the extremes in time order) per
+        bucket of :data:`SPARK_BUCKETS`; NaN where no valid data [PV unit].
+    trend : LoopTrend or None
+        PV, OP and SP over the window, for loops needing action.
+    diagnosis : valvediag.classify.LoopDiagnosis or None
+        The classification of the episode behind the verdict (with its
+        oscillation, Backlash Index and cycle shape), for loops needing action.
+    diagnosis_start, diagnosis_end : datetime or None
+        Time span of the data of ``diagnosis`` (UTC).
+    """
+
+    sparkline: np.ndarray | None = field(default=None, repr=False)
+    trend: LoopTrend | None = field(default=None, repr=False)
+    diagnosis: LoopDiagnosis | None = field(default=None, repr=False)
+    diagnosis_start: dt.datetime | None = None
+    diagnosis_end: dt.datetime | None = None
+
+
 @dataclass(frozen=True)
 class LoopResult:
     """The scan's verdict on one loop.
@@ -342,6 +523,10 @@ class LoopResult:
         From the registry.
     criticality : float
         Ranking weight from the registry [-].
+    detail : LoopDetail or None
+        Plot data for the report (sparkline for every analysed loop; trend
+        and diagnosis for loops needing action). Not part of :meth:`to_json`,
+        of equality or of the store.
     """
 
     loop: str
@@ -364,6 +549,7 @@ class LoopResult:
     window_end: dt.datetime
     description: str = ""
     criticality: float = 1.0
+    detail: LoopDetail | None = field(default=None, repr=False, compare=False)
 
     @property
     def needs_action(self) -> bool:
@@ -371,8 +557,9 @@ class LoopResult:
         return self.verdict in ACTION_VERDICTS
 
     def to_json(self) -> dict:
-        """Every field as plain JSON values (NaN -> None, times as ISO 8601)."""
-        return _clean({f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
+        """Every field but ``detail`` as plain JSON values (NaN -> None, times as ISO 8601)."""
+        return _clean({f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                       if f.name != "detail"})
 
 
 @dataclass(frozen=True)
@@ -652,8 +839,40 @@ def _base(job: LoopJob) -> dict:
                 criticality=float(s.criticality))
 
 
+def _sparkline(aligned: AlignedLoop) -> np.ndarray | None:
+    """The PV's sparkline (see :attr:`LoopDetail.sparkline`), or None without valid PV."""
+    valid = aligned.role_valid.get("pv", np.isfinite(aligned.pv))
+    if aligned.n == 0 or not valid.any():
+        return None
+    pv = np.where(valid, aligned.pv, np.nan)
+    return _reduce(pv, SPARK_BUCKETS)
+
+
+def _own(d: LoopDiagnosis | None) -> LoopDiagnosis | None:
+    """``d`` with its data copied, so that it does not keep the whole aligned grid alive."""
+    if d is None:
+        return None
+    own = lambda a: None if a is None else np.array(a)
+    bres = d.backlash
+    if bres is not None:
+        bres = dataclasses.replace(bres, pv=own(bres.pv))
+    return dataclasses.replace(d, pv=own(d.pv), op=own(d.op), backlash=bres)
+
+
+def _detail(aligned: AlignedLoop, verdict: str, rep: LoopDiagnosis | None = None,
+            span: tuple[int, int] | None = None) -> LoopDetail:
+    """Report data of one loop: the sparkline always; trend and diagnosis when it needs action."""
+    if verdict not in ACTION_VERDICTS or rep is None:
+        return LoopDetail(sparkline=_sparkline(aligned))
+    a, b = span if span is not None else (0, aligned.n)
+    return LoopDetail(sparkline=_sparkline(aligned), trend=LoopTrend.from_aligned(aligned),
+                      diagnosis=_own(rep), diagnosis_start=_utc(aligned, a),
+                      diagnosis_end=_utc(aligned, b))
+
+
 def _insufficient(job: LoopJob, reason: str, *, frames=None, quality: dict | None = None,
-                  evidence: dict | None = None, confidence: float = 0.95) -> LoopResult:
+                  evidence: dict | None = None, confidence: float = 0.95,
+                  detail: LoopDetail | None = None) -> LoopResult:
     spec = job.spec
     ev = {"problems": list(job.problems)}
     ev.update(evidence or {})
@@ -662,7 +881,7 @@ def _insufficient(job: LoopJob, reason: str, *, frames=None, quality: dict | Non
                       severity=0.0, process_type=spec.process_type, bi=nan, period_s=nan,
                       amplitude=nan, amplitude_pct_span=nan, regularity=nan, reason=reason,
                       evidence=_clean(ev), quality=quality if quality is not None
-                      else _no_data_quality(frames), episodes=())
+                      else _no_data_quality(frames), episodes=(), detail=detail)
 
 
 def _check_frames(job: LoopJob, frames: Mapping[str, pl.DataFrame]) -> str | None:
@@ -796,7 +1015,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
         return _insufficient(job, f"no stretch of usable PV and OP data lasting "
                              f"{min_len * h / 60:.3g} min ({min_len} samples) in the window; the "
                              f"longest lasts {longest / 60:.3g} min ({issues})",
-                             quality=qd, evidence=ev)
+                             quality=qd, evidence=ev, detail=_detail(aligned, "insufficient-data"))
 
     seg_diag: list[tuple[int, int, LoopDiagnosis]] = []
     episodes: list[tuple[int, int, LoopDiagnosis]] = []
@@ -819,7 +1038,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
         dur = sum((b - a) for a, b, _ in mine)
         conf_mean = sum((b - a) * d.confidence for a, b, d in mine) / dur
         agreement = weights[verdict] / total
-        rep = max(mine, key=lambda e: (e[1] - e[0]) * e[2].confidence)[2]
+        ra, rb, rep = max(mine, key=lambda e: (e[1] - e[0]) * e[2].confidence)
         confidence = conf_mean * agreement
         reason = rep.reason
         if agreement < 0.999:
@@ -829,7 +1048,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
         ev.update(episode_votes={v: round(w / total, 4) for v, w in weights.items()},
                   agreement=round(agreement, 4))
     else:
-        a, b, rep = max(seg_diag, key=lambda e: e[1] - e[0])
+        ra, rb, rep = max(seg_diag, key=lambda e: e[1] - e[0])
         verdict, confidence, reason = rep.verdict, rep.confidence, rep.reason
         if verdict == "no-oscillation" and ev["coverage"] < config.min_coverage:
             verdict = "insufficient-data"
@@ -871,7 +1090,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                       period_s=rep.period if verdict != "no-oscillation" else math.nan,
                       amplitude=amp, amplitude_pct_span=amp_pct,
                       regularity=rep.regularity, reason=reason, evidence=_clean(ev),
-                      quality=qd, episodes=eps)
+                      quality=qd, episodes=eps, detail=_detail(aligned, verdict, rep, (ra, rb)))
 
 
 # ------------------------------------------------------------- plant level

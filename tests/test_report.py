@@ -1,0 +1,198 @@
+"""Tests of valvediag.report: the evidence figures (reproducible SVG), the plot data kept
+by the scan, sparklines and history strips, and the verdicts in plain words."""
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import math
+import re
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import polars as pl
+import pytest
+from scipy import signal
+
+from valvediag.registry import LoopSpec
+from valvediag.report.explain import duration_text, explain, quality_label
+from valvediag.report.figures import loop_figure, render_loop_figures, svg_text
+from valvediag.report.history import LoopHistory
+from valvediag.report.html import render_report
+from valvediag.report.svg import history_svg, sparkline_svg
+from valvediag.scan import (SPARK_BUCKETS, TREND_BUCKETS, LoopJob, LoopTrend, _reduce,
+                            analyse_loop, rank_results)
+
+UTC = dt.timezone.utc
+T0 = dt.datetime(2026, 1, 1, tzinfo=UTC)
+P = 120.0
+
+
+def frame(seconds, values):
+    return pl.DataFrame({"ts": [T0 + dt.timedelta(seconds=float(s)) for s in seconds],
+                         "value": pl.Series(values, dtype=pl.Float64),
+                         "status": pl.Series([None] * len(values), dtype=pl.String)})
+
+
+def analysed(kind: str, loop: str = "LIC1", seed: int = 1, hours: float = 2.0):
+    """A loop analysed by the scan, with its plot data: 'stiction', 'linear' or 'quiet'."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(hours * 3600.0)
+    if kind == "stiction":
+        tri = signal.sawtooth(2 * np.pi * t / P, 0.5)
+        pv = 50 + tri + rng.normal(0, 0.01, t.size)
+        op = 50 + 5 * signal.square(2 * np.pi * t / P + 0.3) + 2 * tri
+    elif kind == "linear":
+        pv = 50 + np.sin(2 * np.pi * t / P) + rng.normal(0, 0.01, t.size)
+        op = 50 + 5 * np.sin(2 * np.pi * t / P + 1)
+    else:
+        pv = 50 + rng.normal(0, 0.05, t.size)
+        op = 50 + rng.normal(0, 0.2, t.size)
+    spec = LoopSpec(loop, f"{loop}.PV", f"{loop}.OP", f"{loop}.SP", process_type="integrating",
+                    span=100.0, unit="%", description="Drum level")
+    frames = {"pv": frame(t, pv), "op": frame(t, op), "sp": frame([0.0], [50.0])}
+    job = LoopJob(spec, T0, T0 + dt.timedelta(seconds=t.size), ())
+    return analyse_loop(job, frames)
+
+
+@pytest.fixture(scope="module")
+def loops():
+    """Stiction (LIC1), linear oscillation (FIC2) and a quiet loop (TIC3), in that order."""
+    ranked = {r.loop: r for r in rank_results([analysed("stiction"),
+                                               analysed("linear", "FIC2", 2),
+                                               analysed("quiet", "TIC3", 3)])}
+    return [ranked["LIC1"], ranked["FIC2"], ranked["TIC3"]]
+
+
+# ------------------------------------------------------------------ plot data of the scan
+
+def test_scan_keeps_plot_data_only_where_the_report_needs_it(loops):
+    by = {r.loop: r for r in loops}
+    assert by["LIC1"].verdict == "stiction" and by["FIC2"].verdict == "linear-oscillation"
+    assert by["TIC3"].verdict == "no-oscillation"
+    for r in loops:                        # a sparkline for every loop
+        assert r.detail.sparkline.size == 2 * SPARK_BUCKETS
+    quiet = by["TIC3"].detail
+    assert quiet.trend is None and quiet.diagnosis is None
+    d = by["LIC1"].detail
+    assert d.trend.pv.size <= 2 * TREND_BUCKETS and d.trend.sp is not None
+    assert d.diagnosis.verdict == "stiction" and d.diagnosis.backlash is not None
+    assert d.diagnosis_start == by["LIC1"].episodes[0].start
+    # not in JSON, not in equality: the store and verdicts.json never see the arrays
+    assert "detail" not in by["LIC1"].to_json()
+    assert by["LIC1"] == dataclasses.replace(by["LIC1"], detail=None)
+
+
+def test_trend_keeps_each_buckets_extremes_in_time_order():
+    y = np.array([0, 5, -3, 1, 2, 9, 9, 8, np.nan, np.nan, np.nan, np.nan, 4.0])
+    r = _reduce(y, 4)                                     # buckets of 4 points
+    assert r.tolist()[:4] == [5, -3, 2, 9]                # max before min, then min before max
+    assert np.isnan(r[4:6]).all() and r[6:].tolist() == [4, 4]
+    small = _reduce(np.arange(5.0), 10)                   # fewer points than buckets: as is
+    assert small.tolist() == [0, 1, 2, 3, 4]
+
+
+# ----------------------------------------------------------------------- figures
+
+def test_figure_is_reproducible_byte_for_byte(loops):
+    r = loops[0]
+    a, b = loop_figure(r, "f0"), loop_figure(r, "f0")
+    assert a == b
+    assert loop_figure(r, "f1") == a.replace('"f0-', '"f1-').replace("#f0-", "#f1-")
+    # no date, no version, no comment; every id carries the prefix and every reference
+    # points into the same figure
+    assert "<metadata" not in a and "<!--" not in a and "<?xml" not in a
+    assert not re.search(r"\d{4}-\d\d-\d\dT\d\d:", a)
+    ids = re.findall(r'\bid="([^"]+)"', a)
+    assert ids and all(i.startswith("f0-") for i in ids) and len(ids) == len(set(ids))
+    refs = re.findall(r'(?:url\(#|href="#)([^")]+)', a)
+    assert refs and set(refs) <= set(ids)
+    root = ET.fromstring(a)                               # well-formed XML
+    assert root.tag.endswith("svg") and root.get("role") == "img"
+
+
+def test_figures_of_worker_processes_are_the_same_bytes(loops):
+    jobs = [(r, f"f{k}") for k, r in enumerate(loops[:2])]
+    here = render_loop_figures(jobs, workers=1)
+    there = render_loop_figures(jobs, workers=2)
+    assert here == there and all(s.startswith("<svg") for s in here)
+
+
+def test_figure_draws_the_evidence_of_each_kind(loops):
+    stiction, linear = loops[0], loops[1]
+    s = loop_figure(stiction, "a")
+    assert "Backlash Index of every half cycle" in s and "Zoom on 4 cycles" in s
+    assert "Phase plot" in s and "Controller output" in s
+    lin = loop_figure(linear, "b")
+    assert "sine wave" in lin and "Backlash Index of every half cycle" not in lin
+    assert loop_figure(loops[2], "c") is None              # healthy: no figure
+
+
+def test_figure_text_from_the_data_is_escaped(loops):
+    r = dataclasses.replace(loops[0], unit="<b>&$x$")
+    s = loop_figure(r, "e")
+    assert "<b>" not in s and "&lt;b&gt;&amp;" in s
+    ET.fromstring(s)
+
+
+def test_svg_text_strips_what_varies(loops):
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(2, 1))
+    fig.add_subplot().plot([0, 1], [1, 0])
+    s = svg_text(fig, "p", title='a "title" <x>')
+    assert s.startswith('<svg role="img" aria-label="a &#34;title&#34; &lt;x&gt;"')
+    assert "Matplotlib v" not in s and "dc:date" not in s
+
+
+# ------------------------------------------------------------- sparklines and history
+
+def test_sparkline_breaks_at_gaps_and_flat_lines_show():
+    s = sparkline_svg([1, 2, np.nan, 3, 4, 5])
+    assert s.count("<polyline") == 2
+    assert sparkline_svg([2, 2, 2]).count("<polyline") == 1
+    assert sparkline_svg(None) == "" and sparkline_svg([np.nan, np.nan]) == ""
+    assert 'aria-label="&lt;x&gt;"' in sparkline_svg([1, 2], label="<x>")
+    ET.fromstring(str(sparkline_svg([0, 1, 0.5])))
+
+
+def test_history_strip_marks_each_run_and_escapes_tooltips():
+    pts = [{"verdict": "stiction", "bi": 1.1, "label": "<r1>"},
+           {"verdict": "insufficient-data", "bi": None, "label": "r2"},
+           {"verdict": "backlash", "bi": 9.0, "label": "r3", "current": True}]
+    s = str(history_svg(pts))
+    root = ET.fromstring(s)
+    assert len(root.findall("circle")) == 2                 # BI measured in two runs
+    assert len(root.findall("rect")) == 2                   # the frame and the run without BI
+    assert "&lt;r1&gt;" in s and 'stroke="#000"' in s
+
+
+# ---------------------------------------------------------------- plain words
+
+def test_plain_words_for_a_planner(loops):
+    stiction, linear, quiet = loops
+    words = " ".join(explain(stiction, LoopHistory("LIC1", status="new")))
+    assert "sticks" in words and "Drum level" in words and "once every 2 min" in words
+    assert "Backlash Index" in words and "First reported in this run" in words
+    assert "Confidence" in words
+    lin = " ".join(explain(linear))
+    assert "sine wave" in lin and "not this valve" in lin
+    assert explain(quiet)[0].startswith("The loop does not oscillate")
+    rep = LoopHistory("LIC1", status="repeat", first_reported=T0, open_runs=4)
+    assert "first reported on 2026-01-01; 4 runs" in " ".join(explain(stiction, rep))
+
+
+def test_durations_and_quality_labels():
+    assert [duration_text(x) for x in (45, 437, 3000, 9000, 86400)] == \
+        ["45 s", "7.3 min", "50 min", "2.5 h", "24 h"]
+    assert duration_text(math.nan) == "–"
+    assert quality_label({"valid_pct": 99.0, "issues": []})[0] == "good"
+    label, detail, score = quality_label({"valid_pct": 80.0, "compressed": True,
+                                          "issues": ["x", "y"]})
+    assert label == "80 % usable; compressed" and detail == "x\ny" and score == 80.0
+
+
+def test_report_with_figures_renders_each_fault_once(loops):
+    text = render_report(loops, run_id="r", workers=1)
+    assert text.count('<figure><svg role="img"') == 2        # stiction and linear
+    assert text.count('class="spark"') == 3                  # every loop in the table
+    assert 'id="loop-TIC3"' in text

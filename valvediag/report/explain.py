@@ -1,0 +1,261 @@
+"""
+Plain words for the report: what a verdict means to a maintenance planner,
+how big the problem is, how we know, and how sure we are.
+
+:func:`explain` returns a few short sentences per loop; the figures
+(:mod:`valvediag.report.figures`) show the picture behind each of them.
+"""
+from __future__ import annotations
+
+import math
+
+__all__ = ["explain", "duration_text", "confidence_word", "quality_label", "regularity_text",
+           "ACTIONS", "SHORT_ACTIONS", "VERDICT_LABELS"]
+
+#: What to do about each verdict that needs action.
+ACTIONS = {
+    "stiction": "valve maintenance (packing, stem, actuator) or a positioner check",
+    "backlash": "dead-band compensation (Hägglund 2007) or mechanical repair of the "
+                "linkage or positioner",
+    "linear-oscillation": "review the controller tuning or trace the external disturbance; "
+                          "not a valve fault",
+    "undecided": "inspect: a valve nonlinearity whose kind (stiction or backlash) is not "
+                 "clear; check the trend and collect more data",
+}
+
+#: The same in a few words, for the ranked table.
+SHORT_ACTIONS = {
+    "stiction": "valve maintenance or positioner check",
+    "backlash": "dead-band compensation or mechanical repair",
+    "linear-oscillation": "review tuning or trace the disturbance",
+    "undecided": "inspect the valve; collect more data",
+}
+
+#: Short words for the verdicts, for people who do not speak control.
+VERDICT_LABELS = {
+    "stiction": "sticky valve", "backlash": "loose valve (backlash)",
+    "undecided": "valve problem, kind unclear", "linear-oscillation": "oscillation, not the valve",
+    "not-integrating": "oscillates, not assessed", "no-oscillation": "healthy",
+    "insufficient-data": "not enough data",
+}
+
+
+def _finite(x) -> bool:
+    return x is not None and isinstance(x, (int, float)) and math.isfinite(x)
+
+
+def duration_text(seconds: float) -> str:
+    """A duration in the unit a person would use: ``45 s``, ``7.3 min``, ``2.5 h``.
+
+    Parameters
+    ----------
+    seconds : float
+        [s]
+    """
+    if not _finite(seconds):
+        return "–"
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.2g} min" if seconds < 600 else f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.2g} h" if seconds < 36000 else f"{seconds / 3600:.0f} h"
+
+
+def regularity_text(regularity: float) -> str:
+    """Thornhill's regularity in words: ``> 99 (very regular)``, ``3.2 (regular)``, ...
+
+    Parameters
+    ----------
+    regularity : float
+        [-]; above 1 means a regular oscillation.
+    """
+    if not _finite(regularity):
+        return "–"
+    if regularity > 99:
+        return "> 99 (very regular)"
+    return f"{regularity:.2g} ({'regular' if regularity > 1 else 'irregular'})"
+
+
+def confidence_word(confidence: float) -> str:
+    """``high`` (>= 0.75), ``medium`` (>= 0.5) or ``low``.
+
+    Parameters
+    ----------
+    confidence : float
+        [0-1]
+    """
+    if not _finite(confidence):
+        return "unknown"
+    return "high" if confidence >= 0.75 else "medium" if confidence >= 0.5 else "low"
+
+
+def quality_label(quality: dict) -> tuple[str, str, float]:
+    """A short data-quality label for the ranked table.
+
+    Parameters
+    ----------
+    quality : dict
+        :attr:`valvediag.scan.LoopResult.quality`.
+
+    Returns
+    -------
+    label : str
+        ``good`` or the worst findings, e.g. ``compressed; 82 % usable``.
+    detail : str
+        Every finding, one per line (for a tooltip).
+    score : float
+        Usable share of the window [%] (0 without data), for sorting.
+    """
+    q = quality or {}
+    valid = q.get("valid_pct")
+    issues = [str(i) for i in (q.get("issues") or [])]
+    words = []
+    if not _finite(valid):
+        words.append("no usable data")
+        valid = 0.0
+    elif valid < 95:
+        words.append(f"{valid:.0f} % usable")
+    if q.get("compressed"):
+        words.append("compressed")
+    if _finite(q.get("frozen_pct")) and q["frozen_pct"] >= 5:
+        words.append("PV frozen")
+    if _finite(q.get("saturation_pct")) and q["saturation_pct"] >= 5:
+        words.append("OP saturated")
+    if _finite(q.get("manual_pct")) and q["manual_pct"] >= 5:
+        words.append("manual mode")
+    if _finite(q.get("bad_pct")) and q["bad_pct"] >= 5:
+        words.append("bad states")
+    label = "; ".join(words) if words else "good"
+    return label, "\n".join(issues) if issues else "no findings", float(valid)
+
+
+def _amount(r) -> str | None:
+    unit = f" {r.unit}" if r.unit else ""
+    if not _finite(r.amplitude):
+        return None
+    size = f"±{r.amplitude:.3g}{unit}"
+    if _finite(r.amplitude_pct_span):
+        size += f" ({r.amplitude_pct_span:.2g} % of the measuring span)"
+    parts = [f"The {_what(r)} swings by {size}"]
+    if _finite(r.period_s):
+        parts.append(f"once every {duration_text(r.period_s)}")
+    ev = r.evidence or {}
+    window = (r.window_end - r.window_start).total_seconds()
+    osc = ev.get("oscillating_s")
+    text = " ".join(parts)
+    if _finite(osc) and window > 0:
+        text += (f", for {duration_text(osc)} of the {duration_text(window)} window "
+                 f"({100 * osc / window:.0f} %)")
+    return text + "."
+
+
+def _what(r) -> str:
+    return "measurement" if not r.description else f"measurement ({r.description})"
+
+
+def _how(r) -> str | None:
+    ev = r.evidence or {}
+    lo, hi = (ev.get("bi_thresholds") or [math.nan, math.nan])[:2]
+    if r.verdict == "stiction" and _finite(r.bi):
+        return (f"How we know: the measurement turns sharply at its peaks and valleys, as "
+                f"steep there as in the middle of its ramps (zoom plot; Backlash Index "
+                f"{r.bi:.2f}, and up to {lo:g} means stiction). A sticky valve moves in jumps, "
+                f"so the flow changes abruptly.")
+    if r.verdict == "backlash" and _finite(r.bi):
+        return (f"How we know: the measurement runs in straight ramps and rounds off at its "
+                f"peaks and valleys, where it is {r.bi:.1f} times flatter than mid-ramp (zoom "
+                f"plot; Backlash Index {r.bi:.2f}, and {hi:g} or more means backlash). A valve "
+                f"with play lags each reversal of the controller, then follows smoothly.")
+    if r.verdict == "undecided" and _finite(r.bi):
+        return (f"How we know: the swing is not a smooth wave, so the valve does not respond "
+                f"in proportion, but its Backlash Index {r.bi:.2f} lies between {lo:g} "
+                f"(stiction) and {hi:g} (backlash).")
+    if r.verdict == "linear-oscillation":
+        d = ev.get("pv_distortion")
+        if ev.get("op_moves") is False:
+            return ("How we know: the measurement swings while the controller output stands "
+                    "still, so the swing comes from outside the loop.")
+        if _finite(d):
+            return (f"How we know: one average cycle of the swing is almost a perfect sine "
+                    f"wave (harmonic distortion {d:.3f}; a sticky or loose valve makes "
+                    f"corners or flat tops, as in the bottom plot).")
+    return None
+
+
+def _opening(r) -> str:
+    v = r.verdict
+    if v == "stiction":
+        return ("The control valve sticks: it holds its position while the controller "
+                "pushes, then jumps. The loop therefore never settles and swings in a "
+                "regular saw-tooth.")
+    if v == "backlash":
+        return ("The control valve has play (backlash or dead band): each time the "
+                "controller reverses, the valve does not move until the slack in the linkage "
+                "or positioner is taken up. The loop therefore swings regularly.")
+    if v == "undecided":
+        return ("The control valve does not follow the controller in proportion, but the "
+                "data cannot tell whether it sticks or has play.")
+    if v == "linear-oscillation":
+        return ("The loop swings regularly, but smoothly, like a sine wave: a sticky or loose "
+                "valve would distort the swing. The likely cause is the controller tuning or "
+                "a disturbance coming from elsewhere in the plant, not this valve.")
+    if v == "not-integrating":
+        return ("The loop oscillates, but its process is self-regulating, where the valve "
+                "test used here does not apply.")
+    if v == "no-oscillation":
+        return "The loop does not oscillate: nothing to do."
+    return "The loop could not be assessed."
+
+
+def explain(r, history=None) -> list[str]:
+    """A few plain sentences on one loop's verdict, for a maintenance planner.
+
+    Parameters
+    ----------
+    r : valvediag.scan.LoopResult
+        The loop's result.
+    history : valvediag.report.history.LoopHistory, optional
+        Its history across runs (new or repeat, since when).
+
+    Returns
+    -------
+    list of str
+        Plain text (not escaped): what is wrong, how big, how we know, how
+        sure, since when.
+    """
+    out = [_opening(r)]
+    if r.verdict in ("insufficient-data",):
+        out.append(f"Why: {r.reason}.")
+        return out
+    amount = _amount(r)
+    if amount and r.verdict != "no-oscillation":
+        out.append(amount)
+    how = _how(r)
+    if how:
+        out.append(how)
+    if r.needs_action:
+        sure = confidence_word(r.confidence)
+        notes = []
+        q = r.quality or {}
+        ev = r.evidence or {}
+        if q.get("compressed"):
+            notes.append("the historian compresses this measurement, which can distort its "
+                         "shape")
+        if _finite(ev.get("agreement")) and ev["agreement"] < 0.999:
+            notes.append("parts of the day disagree on the verdict")
+        if ev.get("process_type_source") in ("unknown",) and r.verdict in ("stiction", "backlash",
+                                                                           "undecided"):
+            notes.append("the process type is not in the loop list, so it was assumed to be "
+                         "integrating")
+        s = f"Confidence {r.confidence:.2f} ({sure})"
+        s += f": {'; '.join(notes)}." if notes else "."
+        out.append(s)
+    if history is not None and history.status:
+        if history.status == "new":
+            out.append("First reported in this run.")
+        else:
+            when = history.first_reported.strftime("%Y-%m-%d") if history.first_reported \
+                else "an earlier run"
+            out.append(f"Still open: first reported on {when}; {history.open_runs} runs have "
+                       f"found it so far.")
+    return out
