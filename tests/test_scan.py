@@ -400,3 +400,43 @@ def test_a_loop_whose_analysis_fails_gets_insufficient_data(monkeypatch):
     res = scan_mod.analyse_loop(job, {}, scan_mod.ScanConfig())
     assert res.verdict == "insufficient-data"
     assert "analysis failed (FloatingPointError: synthetic failure)" in res.reason
+
+
+def _truth_params(text: str) -> dict:
+    return {k: float(v) for k, v in (kv.split("=") for kv in text.split(";") if kv)}
+
+
+def test_valve_faults_carry_a_size_near_the_simulated_one(scanned_plant):
+    """The scan sizes each stiction/backlash verdict with the workbench's loop model.
+
+    Tolerance, on the loops called right whose size has confidence >= 0.8:
+    each dead band or stick band S within -45 %/+25 % of the simulated one,
+    and the median error within 30 %. (On these historian-like records, with
+    compression and noise, the fit reads the bands 10-25 % small; a low
+    confidence flags the fits that read them far smaller.) Other verdicts
+    carry no size.
+    """
+    plant, summary = scanned_plant
+    truth = {r["loop"]: r for r in plant.truth.iter_rows(named=True)}
+    ratios = []
+    for r in summary.results:
+        if r.verdict not in ("stiction", "backlash"):
+            assert r.size is None
+            continue
+        assert r.size is not None and r.size["reason"], r.loop
+        assert r.evidence["size"] == r.size
+        assert 0.0 <= r.size["confidence"] <= 1.0
+        t = truth[r.loop]
+        if t["truth_verdict"] != r.verdict or r.size["confidence"] < 0.8:
+            continue
+        p = _truth_params(t["fault_params"])
+        key = "DB" if r.verdict == "backlash" else "S"
+        ratios.append((r.loop, key, r.size[key] / p[key]))
+        if key == "S":
+            assert 0 < r.size["J"] <= 1.25 * p["S"], (r.loop, r.size, p)
+    assert {k for _, k, _ in ratios} == {"DB", "S"}, ratios
+    assert all(0.55 <= q <= 1.25 for _, _, q in ratios), ratios
+    assert abs(np.median([q for _, _, q in ratios]) - 1) < 0.3, ratios
+    doc = json.loads(summary.outputs["verdicts"].read_text())
+    sized = [e for e in doc["loops"] if e["size"] is not None]
+    assert {e["verdict"] for e in sized} <= {"stiction", "backlash"} and sized

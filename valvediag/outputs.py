@@ -9,13 +9,16 @@ The scan's output files: ``verdicts.json``, ``work_orders.csv``,
     ``{"run_id": ..., "loops": [...]}`` with one entry per loop, in rank order,
     holding ``loop, verdict, rank, severity, confidence, process_type, bi,
     period_s, amplitude, reason`` and, for convenience, ``unit,
-    amplitude_pct_span, regularity, window_start, window_end``. NaN is
+    amplitude_pct_span, regularity, window_start, window_end, size`` (the
+    valve fault's size from the loop model, see
+    :func:`valvediag.scan.valve_fault_size`; ``null`` for other verdicts). NaN is
     written as ``null``; numbers are rounded to 6 significant digits.
 ``work_orders.csv``
     One row per loop that needs action (:data:`valvediag.scan.ACTION_VERDICTS`),
     in rank order, with the columns :data:`WORK_ORDER_COLUMNS`: ``loop, unit,
     fault, confidence, severity, recommended_action, report_link, status,
-    first_reported, rank, description, reason``. ``report_link`` is
+    first_reported, rank, description, reason, size_estimate`` (e.g. ``dead band
+    3.1 % OP (model fit 95 %, confidence 0.93)``). ``report_link`` is
     ``report.html#loop-<id>`` (:func:`loop_anchor`). ``status`` is ``new``
     for a problem first found in this run and ``repeat`` for one reported by
     an earlier run and still open (see :mod:`valvediag.report.history`);
@@ -40,7 +43,7 @@ import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from .report.explain import ACTIONS
+from .report.explain import ACTIONS, size_text
 from .report.history import PlantHistory, plant_history, read_history
 from .report.html import REPORTS_DIR, loop_anchor, render_report
 from .scan import ACTION_VERDICTS, LoopResult, _clean
@@ -53,11 +56,11 @@ __all__ = ["write_outputs", "write_verdicts_json", "write_work_orders", "write_w
 RECOMMENDED_ACTIONS = ACTIONS
 #: Columns of ``work_orders.csv``, in order.
 WORK_ORDER_COLUMNS = ("loop", "unit", "fault", "confidence", "severity", "recommended_action",
-                      "report_link", "status", "first_reported", "rank", "description", "reason")
+                      "report_link", "status", "first_reported", "rank", "description", "reason", "size_estimate")
 #: Keys of every ``verdicts.json`` loop entry, in order.
 VERDICT_KEYS = ("loop", "verdict", "rank", "severity", "confidence", "process_type", "bi",
                 "period_s", "amplitude", "reason", "unit", "amplitude_pct_span", "regularity",
-                "window_start", "window_end")
+                "window_start", "window_end", "size")
 _UTC = dt.timezone.utc
 
 
@@ -133,6 +136,7 @@ def work_orders(results: Sequence[LoopResult], history: PlantHistory | None = No
                     "report_link": f"{report_name}#{loop_anchor(r.loop)}",
                     "status": h.status or "new", "first_reported": _iso(h.first_reported),
                     "rank": r.rank, "description": r.description, "reason": r.reason,
+                    "size_estimate": size_text(r.size),
                     "first_run_id": h.first_run_id or run_id, "open_runs": h.open_runs or 1})
     return out
 
@@ -166,7 +170,7 @@ def write_work_orders(results: Sequence[LoopResult], path, *, report_name: str =
             w.writerow([o["loop"], o["unit"], o["fault"], f"{o['confidence']:.2f}",
                         f"{o['severity']:.4g}", o["recommended_action"], o["report_link"],
                         o["status"], o["first_reported"], "" if o["rank"] is None else o["rank"],
-                        o["description"], o["reason"]])
+                        o["description"], o["reason"], o["size_estimate"]])
     return path
 
 

@@ -97,7 +97,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "ScanConfig", "LoopJob", "Episode", "LoopTrend", "LoopDetail", "LoopResult", "ScanSummary",
     "plan_loops", "load_loop_frames", "analyse_loop", "rank_results", "persist_results",
-    "run_scan", "severity", "ACTION_VERDICTS", "VALVE_FAULTS", "EPISODE_VERDICTS",
+    "run_scan", "severity", "valve_fault_size", "ACTION_VERDICTS", "VALVE_FAULTS", "EPISODE_VERDICTS",
 ]
 
 #: Verdicts that call for action: they get a rank and a work order.
@@ -128,6 +128,8 @@ MIN_RAW_PER_CYCLE = 10.0
 #: Severity: amplitude scale [% of span] and the largest criticality weight.
 AMPLITUDE_SCALE_PCT = 5.0
 MAX_CRITICALITY = 10.0
+#: Most samples (the latest of the diagnosed episode) fitted for a fault's size [-].
+SIZE_MAX_SAMPLES = 43_200
 #: Buckets of the PV sparkline kept for every loop (min and max of each) [-].
 SPARK_BUCKETS = 48
 #: Buckets of the PV/OP/SP trend kept for a loop needing action (two points each) [-].
@@ -196,6 +198,11 @@ class ScanConfig:
         Share of the window that must hold usable data before a loop without
         any oscillation is called ``no-oscillation`` rather than
         ``insufficient-data`` [-].
+    size_estimate : bool, default True
+        Fit the workbench's loop model to every ``stiction`` or ``backlash``
+        loop and put the fault's size on it (dead band, or Kano S and J, in
+        OP units; :func:`valvediag.workbench.estimate_valve_size`). About a
+        second per faulty loop for a day at 1 s.
 
     Raises
     ------
@@ -211,6 +218,7 @@ class ScanConfig:
     timezone: str | None = None
     max_gap_s: float | None = None
     min_coverage: float = 0.1
+    size_estimate: bool = True
 
     def __post_init__(self):
         if not (isinstance(self.window_hours, (int, float)) and math.isfinite(self.window_hours)
@@ -523,6 +531,10 @@ class LoopResult:
         From the registry.
     criticality : float
         Ranking weight from the registry [-].
+    size : dict or None
+        Size of a valve fault (``stiction``/``backlash`` only): ``DB`` or
+        ``S`` and ``J`` [OP unit], with ``fit_pct``, ``confidence`` and
+        ``reason`` (see :func:`valvediag.workbench.estimate_valve_size`).
     detail : LoopDetail or None
         Plot data for the report (sparkline for every analysed loop; trend
         and diagnosis for loops needing action). Not part of :meth:`to_json`,
@@ -549,6 +561,7 @@ class LoopResult:
     window_end: dt.datetime
     description: str = ""
     criticality: float = 1.0
+    size: dict | None = None
     detail: LoopDetail | None = field(default=None, repr=False, compare=False)
 
     @property
@@ -839,6 +852,54 @@ def _base(job: LoopJob) -> dict:
                 criticality=float(s.criticality))
 
 
+def valve_fault_size(aligned: AlignedLoop, a: int, b: int, fault: str,
+                     process_type: str = "integrating") -> dict:
+    """Size of a loop's valve fault from the loop model fitted to one episode.
+
+    Parameters
+    ----------
+    aligned : valvediag.align.AlignedLoop
+        The loop on its grid.
+    a, b : int
+        Grid points ``[a, b)`` of the episode behind the verdict; its latest
+        :data:`SIZE_MAX_SAMPLES` points are fitted.
+    fault : {'stiction', 'backlash'}
+        The verdict.
+    process_type : str
+        ``'self-regulating'`` fits a first-order plant; anything else an
+        integrating one.
+
+    Returns
+    -------
+    dict
+        :func:`valvediag.workbench.estimate_valve_size`'s result, floats to
+        four significant digits. A fit that fails gives NaN sizes, confidence
+        0 and the reason; it never raises.
+
+    Notes
+    -----
+    The sizes are in the OP's unit (usually % of the valve's travel) and
+    describe the valve as the controller sees it: the dead band or stick
+    band that, put in front of the fitted plant, reproduces the PV best on
+    held-out stretches. A low ``confidence`` means the model explains the PV
+    poorly or the fault barely improves it over a linear valve.
+    """
+    from .workbench import estimate_valve_size
+
+    a = max(a, b - SIZE_MAX_SAMPLES)
+    ptype = "self-regulating" if process_type == "self-regulating" else "integrating"
+    sp = aligned.sp[a:b] if aligned.sp is not None else None
+    try:
+        out = estimate_valve_size(aligned.pv[a:b], aligned.op[a:b], aligned.sample_time, fault,
+                                  ptype, sp=sp)
+    except Exception as exc:  # noqa: BLE001 - a size is extra evidence, never a failed loop
+        keys = ("S", "J") if fault == "stiction" else ("DB",)
+        out = {k: math.nan for k in keys}
+        out.update(confidence=0.0, reason=f"the model fit failed: {type(exc).__name__}: {exc}")
+    return {k: (float(f"{v:.4g}") if isinstance(v, float) and math.isfinite(v) else v)
+            for k, v in out.items()}
+
+
 def _sparkline(aligned: AlignedLoop) -> np.ndarray | None:
     """The PV's sparkline (see :attr:`LoopDetail.sparkline`), or None without valid PV."""
     valid = aligned.role_valid.get("pv", np.isfinite(aligned.pv))
@@ -1079,6 +1140,10 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     ev.update(process_type_source=source, process_screen=rep.process_screen,
               oscillating_s=osc_s, time_share=osc_s / window_s if window_s else 0.0,
               severity_factors=factors, episodes=len(episodes))
+    size = None
+    if config.size_estimate and verdict in VALVE_FAULTS:
+        size = valve_fault_size(aligned, ra, rb, verdict, ptype)
+        ev["size"] = size
     eps = tuple(Episode(start=_utc(aligned, a), end=_utc(aligned, b), period_s=d.period,
                         amplitude=d.amplitude, regularity=d.regularity, verdict=d.verdict,
                         bi=d.bi, confidence=d.confidence) for a, b, d in sorted(episodes,
@@ -1090,7 +1155,8 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                       period_s=rep.period if verdict != "no-oscillation" else math.nan,
                       amplitude=amp, amplitude_pct_span=amp_pct,
                       regularity=rep.regularity, reason=reason, evidence=_clean(ev),
-                      quality=qd, episodes=eps, detail=_detail(aligned, verdict, rep, (ra, rb)))
+                      quality=qd, episodes=eps, size=size,
+                      detail=_detail(aligned, verdict, rep, (ra, rb)))
 
 
 # ------------------------------------------------------------- plant level

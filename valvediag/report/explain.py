@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["explain", "duration_text", "confidence_word", "quality_label", "regularity_text",
+__all__ = ["explain", "size_text", "duration_text", "confidence_word", "quality_label", "regularity_text",
            "ACTIONS", "SHORT_ACTIONS", "VERDICT_LABELS"]
 
 #: What to do about each verdict that needs action.
@@ -149,6 +149,34 @@ def _amount(r) -> str | None:
     return text + "."
 
 
+def size_text(size) -> str:
+    """A valve fault's size in a few words, e.g. ``'dead band 3.1 % OP (model fit 95 %)'``.
+
+    Parameters
+    ----------
+    size : dict or None
+        :attr:`valvediag.scan.LoopResult.size`.
+
+    Returns
+    -------
+    str
+        Empty when there is no size (no valve fault, or the fit found none).
+    """
+    if not size:
+        return ""
+    if _finite(size.get("DB")):
+        text = f"dead band {size['DB']:.2g} % OP"
+    elif _finite(size.get("S")) and _finite(size.get("J")):
+        text = f"stick band S {size['S']:.2g} % OP, slip jump J {size['J']:.2g} % OP"
+    else:
+        return ""
+    if _finite(size.get("fit_pct")):
+        text += f" (model fit {size['fit_pct']:.0f} %"
+        text += f", confidence {size['confidence']:.2f})" if _finite(size.get("confidence")) \
+            else ")"
+    return text
+
+
 def _what(r) -> str:
     return "measurement" if not r.description else f"measurement ({r.description})"
 
@@ -233,6 +261,9 @@ def explain(r, history=None) -> list[str]:
     how = _how(r)
     if how:
         out.append(how)
+    size = size_text(getattr(r, "size", None))
+    if size and r.verdict in ("stiction", "backlash"):
+        out.append(f"Size, from a loop model fitted to the data: {size}.")
     if r.needs_action:
         sure = confidence_word(r.confidence)
         notes = []

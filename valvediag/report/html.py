@@ -26,7 +26,7 @@ from pathlib import Path
 from markupsafe import Markup
 
 from .explain import ACTIONS, SHORT_ACTIONS, VERDICT_LABELS, confidence_word, duration_text, \
-    explain, quality_label, regularity_text
+    explain, quality_label, regularity_text, size_text
 from .history import PlantHistory, plant_history
 from .svg import history_svg, sparkline_svg
 
@@ -123,6 +123,7 @@ def _facts(r) -> list[tuple[str, str]]:
     facts = [("Verdict", f"{r.verdict} ({VERDICT_LABELS.get(r.verdict, '')})"),
              ("Confidence", f"{_fmt(r.confidence, '.2f')} ({confidence_word(r.confidence)})"),
              ("Backlash Index", _fmt(r.bi, ".2f")),
+             ("Fault size (model fit)", size_text(getattr(r, "size", None)) or "–"),
              ("Period", f"{duration_text(r.period_s)} ({_fmt(r.period_s, '.4g', ' s')})"),
              ("Amplitude", f"±{_fmt(r.amplitude, '.3g', unit)} "
                            f"({_fmt(r.amplitude_pct_span, '.2g', ' % of span')})"),
