@@ -27,6 +27,9 @@ ALIASES = {"timestamp": ("timestamp", "time", "ts", "datetime", "date"),
            "pv": ("pv",), "op": ("op", "out", "co"), "sp": ("sp",), "mv": ("mv", "position")}
 #: A spacing longer than this many median spacings is a gap (not bridged).
 GAP_FACTOR = 5.0
+#: Most points of the uniform grid an irregular file is resampled onto [-]
+#: (a year at 1 s is 31.5 million).
+MAX_GRID_POINTS = 40_000_000
 
 
 class LoopFileError(ValueError):
@@ -119,9 +122,11 @@ def read_loop_csv(path, *, columns: dict | None = None):
     Raises
     ------
     LoopFileError
-        Missing file or columns, an empty file, unreadable timestamps, time
-        running backwards, or duplicate timestamps with different values; the
-        message names the file and, where it applies, the line.
+        Missing file or columns, an empty file, unreadable or infinite
+        timestamps, time running backwards, duplicate timestamps with
+        different values, or a span too long to resample (more than
+        :data:`MAX_GRID_POINTS` median spacings); the message names the file
+        and, where it applies, the line.
 
     Notes
     -----
@@ -145,6 +150,10 @@ def read_loop_csv(path, *, columns: dict | None = None):
     if np.isnan(t).any():
         i = int(np.flatnonzero(np.isnan(t))[0])
         raise LoopFileError(f"{path}: line {i + 2}: empty timestamp")
+    if not np.isfinite(t).all():
+        i = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise LoopFileError(f"{path}: line {i + 2}: timestamp {df[cols['timestamp']][i]!r} "
+                            f"is not a finite time")
     meta = {"file": str(path), "rows": df.height, "non_numeric": {}, "duplicates_dropped": 0}
     vals = {}
     for role in ("pv", "op", "sp", "mv"):
@@ -187,7 +196,13 @@ def read_loop_csv(path, *, columns: dict | None = None):
         grid = t - t[0]
         out = {k: v for k, v in vals.items()}
     else:
-        n = int(np.floor((t[-1] - t[0]) / h + 1e-9)) + 1
+        span = (t[-1] - t[0]) / h
+        if not span < MAX_GRID_POINTS:
+            raise LoopFileError(f"{path}: the record spans {t[-1] - t[0]:.6g} s, "
+                                f"{span:.3g} times its median spacing of {h:.6g} s; resampling "
+                                f"it would take more than {MAX_GRID_POINTS:,} points (a wrong "
+                                f"timestamp, or mixed time units?)")
+        n = int(np.floor(span + 1e-9)) + 1
         grid = np.arange(n) * h
         tt = t - t[0]
         seg = np.searchsorted(tt, grid, side="right") - 1        # sample at or before each grid point

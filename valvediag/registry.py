@@ -122,9 +122,29 @@ def _read_text(path: str) -> str:
     except OSError as exc:
         raise RegistryError(f"{path}: cannot read loop registry ({exc.strerror})") from None
     try:
-        return data.decode("utf-8-sig")
+        text = data.decode("utf-8-sig")
     except UnicodeDecodeError:
-        return data.decode("latin-1")
+        text = data.decode("latin-1")
+    return text.replace("\r\n", "\n").replace("\r", "\n")   # old Mac line ends too
+
+
+def _rows(reader, path: str, problems: list[str]):
+    """``(first line, fields)`` of each record; a record the csv module refuses is a problem."""
+    while True:
+        start = reader.line_num + 1
+        try:
+            fields = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            problems.append(f"{path} line {start}: unreadable row ({exc}); row skipped")
+            continue
+        yield start, fields
+
+
+def _shown(name: str) -> str:
+    """A loop name fit for a one-line message (line breaks and controls escaped)."""
+    return name if name.isprintable() else name.encode("unicode_escape").decode("ascii")
 
 
 def _map_header(header: list[str], path: str) -> list[str]:
@@ -219,7 +239,10 @@ def read_loops_csv(path: str | os.PathLike) -> tuple[list[LoopSpec], list[str]]:
     path = os.fspath(path)
     text = _read_text(path)
     reader = csv.reader(io.StringIO(text))
-    header = next((r for r in reader if any(c.strip() for c in r)), None)
+    try:
+        header = next((r for r in reader if any(c.strip() for c in r)), None)
+    except csv.Error as exc:
+        raise RegistryError(f"{path}: unreadable header ({exc})") from None
     if header is None:
         raise RegistryError(f"{path}: empty loop registry (no header)")
     columns = _map_header(header, path)
@@ -227,8 +250,7 @@ def read_loops_csv(path: str | os.PathLike) -> tuple[list[LoopSpec], list[str]]:
     loops: list[LoopSpec] = []
     problems: list[str] = []
     first_line: dict[str, int] = {}
-    for fields in reader:
-        line = reader.line_num
+    for line, fields in _rows(reader, path, problems):
         if not any(f.strip() for f in fields):
             continue
         if len(fields) > len(columns):
@@ -240,7 +262,7 @@ def read_loops_csv(path: str | os.PathLike) -> tuple[list[LoopSpec], list[str]]:
         if not name:
             problems.append(f"{path} line {line}: no loop name; row skipped")
             continue
-        where = f"{path} line {line} (loop {name})"
+        where = f"{path} line {line} (loop {_shown(name)})"
         if len(fields) < len(columns):
             problems.append(f"{where}: {len(fields)} fields but the header has {len(columns)}; "
                             f"missing fields taken as empty")
