@@ -26,10 +26,11 @@ Rules that hold for every reader
   as ``"confidence <n>"``; confidence -1 means no data, so its value is NULL.
 * ``value IS NULL`` therefore means exactly "this sample is bad".
 * Time stamps become UTC. ISO 8601 with an offset (``Z``, ``+01:00``,
-  ``+0100``, ``+01``) is exact; mixed offsets in one file are fine. Epoch
-  seconds are UTC. A naive local time stamp needs ``timezone``; one that falls
-  into a daylight-saving overlap (ambiguous) or gap (non-existent) is
-  quarantined, never guessed.
+  ``+0100``, ``+01``) is exact, with ``T`` or a blank between date and time,
+  to the minute or the second (with any fraction); mixed offsets in one file
+  are fine. Epoch seconds are UTC. A naive local time stamp needs
+  ``timezone``; one that falls into a daylight-saving overlap (ambiguous) or
+  gap (non-existent) is quarantined, never guessed.
 * Rows whose time runs backwards are kept and sorted; the file's notes say
   where (see :class:`ParsedExport`).
 * Within one file, exact duplicate samples are dropped and counted; a second
@@ -42,18 +43,30 @@ Notes
 -----
 * CSV is read line by line: a quoted field holding a line break is not
   supported; each physical line of such a record is quarantined as malformed.
+  Lines end at LF (or CRLF). Bare CR line ends are not supported: a header
+  line the csv module cannot parse (e.g. one holding a bare CR) is an
+  :class:`ExportError`; a body line it refuses (a bare CR outside quotes, a
+  field longer than its 131072-character limit) is quarantined as malformed.
 * The CSV separator is sniffed from the header (``,``, ``;`` or tab). With
   ``;`` or tab a decimal comma in values is accepted.
 * A file that is not valid UTF-8 is read as Latin-1 (lossless byte mapping) and
   a note says so.
 * Time stamps are stored with microsecond resolution; finer digits are
   truncated. Epoch numbers are seconds; a value above 1e11 (likely
-  milliseconds) is quarantined rather than guessed.
-* Blank lines carry no data and are skipped. In a wide file an empty cell (or
-  NaN/null in a wide Parquet file) means "no sample for this tag at this time"
-  and is skipped; in a long file an empty value is quarantined.
-* A file with no header at all is an error; a file with a header but no rows is
-  not (a note says it is empty).
+  milliseconds or microseconds) or before 1900 is quarantined rather than
+  guessed (text, CSV and Parquet numeric time columns alike).
+* Blank lines (Unicode blanks included) carry no data and are skipped. In a
+  wide file an empty cell (or NaN/null in a wide Parquet file) means "no sample
+  for this tag at this time" and is skipped; ``inf`` is a bad sample as
+  everywhere; in a long file an empty value is quarantined.
+* A wide file's tags may have any name, also one the readers use internally
+  (``line``, ``raw``, ...): the readers address columns by position.
+* A file with no header at all (or only blanks) is an error; a file with a
+  header but no rows is not (a note says it is empty).
+* Parquet: a file the reader cannot read (even one that makes it panic) is an
+  :class:`ExportError`; so is a tag, value or status column of a type that
+  holds no single number or text (list, array, struct, duration, ...), or
+  binary that is not UTF-8.
 
 References
 ----------
@@ -67,6 +80,7 @@ from __future__ import annotations
 import csv
 import glob
 import hashlib
+import logging
 import os
 import zoneinfo
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -74,6 +88,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import polars as pl
+
+_log = logging.getLogger(__name__)
 
 __all__ = [
     "DIGITAL_STATES",
@@ -138,6 +154,7 @@ _STATUS_NAMES = ("status", "quality", "flag", "flags", "annotation")
 _CONFIDENCE_NAMES = ("confidence",)
 
 _EPOCH_MAX_S = 1e11  # above this an "epoch" number is probably milliseconds
+_EPOCH_MIN_S = -2_208_988_800.0  # 1900-01-01T00:00:00Z; below this it is no epoch in seconds
 _PARQUET_SUFFIXES = (".parquet", ".pq", ".parq")
 _UNIT_SEP = "\x1f"  # the line reader splits on this byte; it never occurs in text
 
@@ -187,6 +204,11 @@ class ParsedExport:
     backwards_rows: int = 0
     notes: tuple[str, ...] = ()
     _raw_source: pl.DataFrame | None = field(default=None, repr=False, compare=False)
+    #: Rows that lost to an earlier row of the same (tag, ts) in this slice:
+    #: :data:`SAMPLE_SCHEMA` plus ``reason`` (null: exact duplicate; else the
+    #: conflict's quarantine reason). :func:`_write_parsed` needs them when the
+    #: key is already stored, to compare them with the stored sample instead.
+    _later: pl.DataFrame | None = field(default=None, repr=False, compare=False)
 
     def raw_for(self, lines: Iterable[int]) -> pl.DataFrame:
         """Return the raw text of some lines as a frame ``(line, raw)``.
@@ -272,6 +294,14 @@ class IngestReport:
 # --------------------------------------------------------------------------
 @dataclass(frozen=True)
 class _Layout:
+    """Roles of the file's columns, by their names in the file.
+
+    The readers name the file's columns by position (``f0``, ``f1``, ...;
+    :meth:`field`), never by their own names, so that no column name (a wide
+    tag called ``line``, ``raw``, ``kind``, ...) can collide with a column the
+    readers add.
+    """
+
     shape: str
     time_col: str
     tag_col: str | None = None
@@ -279,6 +309,11 @@ class _Layout:
     status_col: str | None = None
     status_is_confidence: bool = False
     tag_cols: tuple[str, ...] = ()
+    columns: tuple[str, ...] = ()
+
+    def field(self, name: str) -> str:
+        """Positional frame column (``f<i>``) of the file column ``name``."""
+        return f"f{self.columns.index(name)}"
 
 
 def _norm(name: str) -> str:
@@ -324,7 +359,7 @@ def _detect_layout(columns: Sequence[str], path: str) -> _Layout:
             raise ExportError(f"{path}: unknown columns {unknown} in a long export "
                               f"(tag,timestamp,value[,status]); columns found: {found}")
         return _Layout("long", time_col, tag_col, value_col, status_col or conf_col,
-                       conf_col is not None)
+                       conf_col is not None, columns=tuple(columns))
     tag_cols = tuple(c for c in columns if c != time_col)
     if not tag_cols:
         raise ExportError(f"{path}: only a time stamp column, no tag or value columns; "
@@ -333,17 +368,37 @@ def _detect_layout(columns: Sequence[str], path: str) -> _Layout:
     if clash:
         raise ExportError(f"{path}: columns {clash} look like a long export but there is no "
                           f"tag column; columns found: {found}")
-    return _Layout("wide", time_col, tag_cols=tag_cols)
+    return _Layout("wide", time_col, tag_cols=tag_cols, columns=tuple(columns))
 
 
 # --------------------------------------------------------------------------
 # time stamps
 # --------------------------------------------------------------------------
-_OFFSET_FORMATS = ("%Y-%m-%dT%H:%M:%S%.f%z", "%Y-%m-%d %H:%M:%S%.f%z",
-                   "%Y-%m-%dT%H:%M%z", "%Y-%m-%dT%H:%M:%S%#z")
+#: Tried after :func:`_parse_time_text` normalised the text: "T" between date and
+#: time, offset as ``+HH:MM`` or ``+HHMM``.
+_OFFSET_FORMATS = ("%Y-%m-%dT%H:%M:%S%.f%z", "%Y-%m-%dT%H:%M%z")
 _NAIVE_FORMATS = ("%Y-%m-%dT%H:%M:%S%.f", "%Y-%m-%d %H:%M:%S%.f", "%Y-%m-%dT%H:%M",
                   "%Y-%m-%d %H:%M", "%d-%b-%Y %H:%M:%S%.f", "%d-%b-%y %H:%M:%S%.f")
 _EPOCH_RE = r"^[+-]?\d+(\.\d*)?$"
+
+
+def _epoch_utc(sec: pl.Expr) -> pl.Expr:
+    """UTC time of epoch seconds ``sec`` (Float64); null outside 1900 .. ``_EPOCH_MAX_S``.
+
+    Out-of-range values are nulled *before* the integer cast: a when/then
+    evaluates its branches for every row, and a strict cast of a huge number
+    (>= ~9.2e12 s) would fail the whole column.
+    """
+    ok = (sec >= _EPOCH_MIN_S) & (sec < _EPOCH_MAX_S)  # false for NaN and +-inf
+    return (pl.when(ok).then(sec) * 1e6).round().cast(pl.Int64).cast(pl.Datetime("us", "UTC"))
+
+
+def _epoch_reason(sec: pl.Expr, text: pl.Expr) -> pl.Expr:
+    """Why a finite epoch number is not used (null when it is in range)."""
+    return (pl.when(sec.abs() >= _EPOCH_MAX_S)
+            .then(pl.format("epoch value {} is too large for seconds (milliseconds?)", text))
+            .when(sec < _EPOCH_MIN_S)
+            .then(pl.format("epoch value {} is before 1900 (not epoch seconds?)", text)))
 
 
 def _check_timezone(timezone: str | None) -> None:
@@ -387,18 +442,20 @@ def _parse_time_text(text: pl.Series) -> pl.DataFrame:
     u = text.unique()
     orig = u.str.strip_chars()
     s = orig
-    # "Z"/"UTC" suffix -> +00:00; a blank before the offset; decimal comma in seconds
+    # "Z"/"UTC" suffix -> +00:00; a blank before the offset; decimal comma in seconds;
+    # a blank between ISO date and time -> "T"; an hour-only offset "+01" -> "+01:00"
     s = (s.str.replace(r"(?i)\s*(Z|UTC)$", "+00:00")
           .str.replace(r"\s+([+-]\d{2}(:?\d{2})?)$", "$1")
-          .str.replace(r"(:\d{2}),(\d+)", "$1.$2"))
+          .str.replace(r"(:\d{2}),(\d+)", "$1.$2")
+          .str.replace(r"^(\d{4}-\d{2}-\d{2})\s+(\d{2}:)", "${1}T${2}")
+          .str.replace(r"(T\d{2}:\d{2}(:\d{2}(\.\d+)?)?[+-]\d{2})$", "${1}:00"))
     has_offset = s.str.contains(r"[T ]\d{2}:\d{2}(:\d{2}(\.\d+)?)?[+-]\d{2}(:?\d{2})?$")
     has_offset = has_offset.fill_null(False)
     epoch = pl.select(pl.when(pl.lit(s).str.contains(_EPOCH_RE))
                       .then(pl.lit(s).cast(pl.Float64, strict=False))).to_series()
     utc = pl.select(pl.coalesce(
         _try_formats(s.set(~has_offset, None), _OFFSET_FORMATS, "UTC"),
-        pl.when(epoch.abs() < _EPOCH_MAX_S)
-        .then((epoch * 1e6).round().cast(pl.Int64).cast(pl.Datetime("us", "UTC"))))).to_series()
+        _epoch_utc(pl.lit(epoch)))).to_series()
     naive = _try_formats(s.set(has_offset | epoch.is_not_null(), None), _NAIVE_FORMATS, None)
     out = pl.DataFrame({"text": u, "s": orig, "utc": utc, "naive": naive, "epoch": epoch,
                         "off": has_offset})
@@ -409,8 +466,8 @@ def _parse_time_text(text: pl.Series) -> pl.DataFrame:
         .when(pl.col("naive").is_not_null()).then(pl.lit("naive")),
         ts_reason=pl.when(pl.col("s").is_null() | (pl.col("s") == ""))
         .then(pl.lit("empty timestamp"))
-        .when(pl.col("epoch").abs() >= _EPOCH_MAX_S)
-        .then(pl.format("epoch value {} is too large for seconds (milliseconds?)", pl.col("s")))
+        .when(_epoch_reason(pl.col("epoch"), pl.col("s")).is_not_null())
+        .then(_epoch_reason(pl.col("epoch"), pl.col("s")))
         .when(pl.col("utc").is_null() & pl.col("naive").is_null())
         .then(pl.format("unparseable timestamp '{}'", pl.col("s"))),
     )
@@ -429,9 +486,7 @@ def _parse_time_column(text: pl.Series) -> pl.DataFrame:
         sec = pl.when(pl.col("t").str.contains(_EPOCH_RE)).then(
             pl.col("t").cast(pl.Float64, strict=False))
         out = pl.DataFrame({"t": text}).select(
-            utc=pl.when(sec.abs() < _EPOCH_MAX_S)
-            .then((sec * 1e6).round().cast(pl.Int64).cast(_TIME_COLUMNS["utc"])),
-            naive=pl.lit(None, _TIME_COLUMNS["naive"]))
+            utc=_epoch_utc(sec), naive=pl.lit(None, _TIME_COLUMNS["naive"]))
         out = out.with_columns(kind=pl.when(pl.col("utc").is_not_null()).then(pl.lit("epoch")),
                                ts_reason=pl.lit(None, pl.String))
     elif best is None:
@@ -498,14 +553,12 @@ def _resolve_times(frame: pl.DataFrame, col: str, timezone: str | None, path: st
     elif dtype.is_numeric():
         sec = pl.col(col).cast(pl.Float64)
         frame = frame.with_columns(
-            utc=pl.when(sec.abs() < _EPOCH_MAX_S)
-            .then((sec * 1e6).round().cast(pl.Int64).cast(pl.Datetime("us", "UTC"))),
+            utc=_epoch_utc(sec),
             naive=pl.lit(None, pl.Datetime("us")),
-            kind=pl.when(sec.is_finite() & (sec.abs() < _EPOCH_MAX_S)).then(pl.lit("epoch")),
+            kind=pl.when(_epoch_utc(sec).is_not_null()).then(pl.lit("epoch")),
             ts_reason=pl.when(sec.is_null()).then(pl.lit("empty timestamp"))
             .when(~sec.is_finite()).then(pl.format("unparseable timestamp '{}'", sec))
-            .when(sec.abs() >= _EPOCH_MAX_S)
-            .then(pl.format("epoch value {} is too large for seconds (milliseconds?)", sec)),
+            .otherwise(_epoch_reason(sec, sec)),
         )
     else:
         raise ExportError(f"{path}: time column {col!r} has type {dtype}, not text, "
@@ -597,6 +650,8 @@ def _read_csv_lines(path: str) -> tuple[pl.DataFrame, list[str]]:
                         schema={"raw": pl.String}, skip_lines=0)
     lines = lines.with_row_index("line", offset=1).with_columns(pl.col("line").cast(pl.Int64))
     lines = lines.filter(pl.col("raw").is_not_null() & (pl.col("raw").str.strip_chars() != ""))
+    if lines.is_empty():  # only Unicode blanks (NBSP, NEL, ...), which bytes.strip() keeps
+        raise ExportError(f"{path}: empty file (no header, no rows)")
     return lines, notes
 
 
@@ -606,11 +661,40 @@ def _sniff_separator(header: str) -> str:
     return best if counts[best] else ","
 
 
+def _csv_problem(exc: csv.Error) -> str:
+    """One-line reason for a line the csv module refuses."""
+    text = " ".join(str(exc).split())
+    if "new-line character" in text:
+        return "line break (bare CR) inside an unquoted field"
+    if "field larger than field limit" in text:
+        return f"a field is longer than {csv.field_size_limit()} characters"
+    return text or type(exc).__name__
+
+
+def _split_header(header: str, sep: str, path: str) -> list[str]:
+    """Column names of the header line, or :class:`ExportError`."""
+    try:
+        return next(csv.reader([header], delimiter=sep))
+    except csv.Error as exc:
+        hint = ("; bare CR line ends are not supported, convert the file to LF or CRLF"
+                if "\r" in header else "")
+        raise ExportError(f"{path}: cannot parse the header line ({_csv_problem(exc)}){hint}"
+                          ) from None
+
+
 def _split_fields(rows: pl.DataFrame, n: int, sep: str) -> tuple[pl.DataFrame, pl.DataFrame]:
-    """Split ``(line, raw)`` rows into ``f0..f{n-1}``; wrong field counts go aside."""
+    """Split ``(line, raw)`` rows into ``f0..f{n-1}``; wrong field counts go aside.
+
+    Lines without a quote or CR are split in polars; the others go through the
+    csv module one by one, and a line it refuses (a bare CR outside quotes, a
+    field over its size limit) is malformed. ``good`` keeps the file order.
+    (A CRLF line end is not in ``raw``; a CR left inside a line is a line
+    break the reader does not honour, so the line is no record of its own.)
+    """
     names = [f"f{i}" for i in range(n)]
-    quoted = pl.col("raw").str.contains('"', literal=True)
-    plain = rows.filter(~quoted).with_columns(pl.col("raw").str.split(sep).alias("_f"))
+    needs_csv = (pl.col("raw").str.contains('"', literal=True)
+                 | pl.col("raw").str.contains("\r", literal=True))
+    plain = rows.filter(~needs_csv).with_columns(pl.col("raw").str.split(sep).alias("_f"))
     plain = plain.with_columns(_n=pl.col("_f").list.len())
     good = plain.filter(pl.col("_n") == n).select(
         "line", "raw", *[pl.col("_f").list.get(i).str.strip_chars().alias(c)
@@ -618,17 +702,24 @@ def _split_fields(rows: pl.DataFrame, n: int, sep: str) -> tuple[pl.DataFrame, p
     bad = plain.filter(pl.col("_n") != n).select(
         "line", "raw", reason=pl.format("malformed line: expected {} fields, found {}",
                                         pl.lit(n), pl.col("_n")))
-    q = rows.filter(quoted)
+    q = rows.filter(needs_csv)
     if q.height:
         parsed_ok, parsed_bad = [], []
         for line, raw in q.iter_rows():
-            fields = next(csv.reader([raw], delimiter=sep), [])
+            try:
+                fields = next(csv.reader([raw], delimiter=sep), [])
+            except csv.Error as exc:
+                parsed_bad.append((line, raw, f"malformed line: {_csv_problem(exc)}"))
+                continue
             if len(fields) == n:
-                parsed_ok.append((line, raw, *[f.strip() for f in fields]))
+                parsed_ok.append((line, raw, *fields))
             else:
                 parsed_bad.append((line, raw, f"malformed line: expected {n} fields, "
                                               f"found {len(fields)}"))
-        good = pl.concat([good, pl.DataFrame(parsed_ok, schema=good.schema, orient="row")])
+        csv_ok = pl.DataFrame(parsed_ok, schema=good.schema, orient="row").with_columns(
+            pl.col(names).str.strip_chars())  # the same blanks as the polars path strips
+        # back into file order: the first sample of a (tag, ts) in the file wins
+        good = pl.concat([good, csv_ok]).sort("line")
         bad = pl.concat([bad, pl.DataFrame(parsed_bad, schema=bad.schema, orient="row")])
     good = good.with_columns([pl.when(pl.col(c) != "").then(pl.col(c)).alias(c) for c in names])
     return good, bad
@@ -671,26 +762,35 @@ def _long_samples(frame: pl.DataFrame, lay: _Layout, path: str, timezone: str | 
 def _wide_samples(frame: pl.DataFrame, lay: _Layout, path: str, timezone: str | None,
                   states: frozenset[str], decimal_comma: bool, naive_error: bool
                   ) -> tuple[pl.DataFrame, pl.DataFrame]:
-    """``frame`` has ``line``, ``time`` and one column per tag."""
-    frame = _resolve_times(frame.select("line", "time", *lay.tag_cols), "time", timezone, path,
+    """``frame`` has ``line``, ``time`` and one column per tag, named by position
+    (``f<i>``, see :class:`_Layout`); the tag of a sample is its column's name in
+    the file, stripped. A numeric cell that is NaN or null is no sample; +-inf
+    is a bad sample (value null, ``"inf"``/``"-inf"`` in status)."""
+    fields = [lay.field(c) for c in lay.tag_cols]
+    names = pl.Series(lay.tag_cols, dtype=pl.String).str.strip_chars().to_list()
+    to_tag = pl.col("tag").replace_strict(fields, names, return_dtype=pl.String)
+    frame = _resolve_times(frame.select("line", "time", *fields), "time", timezone, path,
                            naive_error)
     bad_rows = frame.filter(pl.col("ts_reason").is_not_null()).select(
         "line", reason=pl.col("ts_reason"))
     frame = frame.filter(pl.col("ts_reason").is_null()).drop("ts_reason", "time")
     parts, bad_cells = [], [bad_rows]
-    numeric = [c for c in lay.tag_cols if frame.schema[c].is_numeric()]
-    texty = [c for c in lay.tag_cols if c not in numeric]
+    numeric = [c for c in fields if frame.schema[c].is_numeric()]
+    texty = [c for c in fields if c not in numeric]
     if numeric:
         long = frame.unpivot(numeric, index=["line", "ts"], variable_name="tag",
                              value_name="v").with_columns(pl.col("v").cast(pl.Float64))
         # NaN / null in a wide numeric column = no sample at this time stamp
         long = long.filter(pl.col("v").is_not_null() & ~pl.col("v").is_nan())
-        parts.append(long.select("line", "ts", "tag", value="v",
-                                 status=pl.lit(None, pl.String)))
+        parts.append(long.select("line", "ts", tag=to_tag,
+                                 value=pl.when(pl.col("v").is_finite()).then(pl.col("v")),
+                                 status=pl.when(pl.col("v").is_infinite())
+                                 .then(pl.col("v").cast(pl.String))))
     if texty:
         long = frame.select("line", "ts", *[pl.col(c).cast(pl.String) for c in texty]).unpivot(
             texty, index=["line", "ts"], variable_name="tag", value_name="v")
         long = long.filter(pl.col("v").is_not_null() & (pl.col("v").str.strip_chars() != ""))
+        long = long.with_columns(tag=to_tag)
         long = long.hstack(_value_frame(long["v"], states, decimal_comma)).rename(
             {"state": "status", "vreason": "reason"})
         bad_cells.append(long.filter(pl.col("reason").is_not_null()).select(
@@ -700,7 +800,7 @@ def _wide_samples(frame: pl.DataFrame, lay: _Layout, path: str, timezone: str | 
     good = pl.concat(parts) if parts else pl.DataFrame(
         schema={"line": pl.Int64, "ts": pl.Datetime("us", "UTC"), "tag": pl.String,
                 "value": pl.Float64, "status": pl.String})
-    good = good.select(pl.col("tag").str.strip_chars(), "ts", "value", "status",
+    good = good.select("tag", "ts", "value", "status",
                        source_file=pl.lit(path), source_line=pl.col("line"))
     return good, pl.concat(bad_cells)
 
@@ -715,6 +815,7 @@ class _Deduped:
     conflicts: pl.DataFrame
     backwards: int
     first_backwards: str | None
+    later: pl.DataFrame  # rows after the first of their (tag, ts): samples + reason
 
 
 def _sort_and_dedupe(good: pl.DataFrame) -> _Deduped:
@@ -724,7 +825,9 @@ def _sort_and_dedupe(good: pl.DataFrame) -> _Deduped:
     Rows whose time is earlier than the tag's previous row are counted. After
     a stable sort, the first row of each (tag, ts) is kept; a later row equal
     to it in value and status is an exact duplicate (dropped, counted); a
-    later row that differs is a conflict ``(line, reason)``.
+    later row that differs is a conflict ``(line, reason)``. Both kinds of
+    later rows are also returned (``later``: the sample columns and ``reason``,
+    null for an exact duplicate).
     """
     tags = good["tag"].drop_nulls().unique().sort()
     g = good.with_columns(pl.col("tag").cast(pl.Enum(tags)))  # cheap, ordered sort key
@@ -744,15 +847,18 @@ def _sort_and_dedupe(good: pl.DataFrame) -> _Deduped:
                        & pl.col("status").eq_missing(pl.col("status").gather(pl.col("_first"))))
     dropped = int(s.select((~pl.col("_new") & pl.col("_same")).sum()).item())
     # positions refer to the whole frame: gather before filtering
-    clash = s.with_columns(_kept=pl.col("source_line").gather(pl.col("_first"))).filter(
-        ~pl.col("_new") & ~pl.col("_same"))
-    conflicts = clash.select(
-        line=pl.col("source_line"),
-        reason=pl.format(DUPLICATE_REASON + " (tag {}; kept line {})",
-                         pl.col("tag").cast(pl.String), pl.col("_kept")))
+    later = s.with_columns(_kept=pl.col("source_line").gather(pl.col("_first"))).filter(
+        ~pl.col("_new"))
+    later = later.select(
+        pl.col("tag").cast(pl.String), "ts", "value", "status", "source_file", "source_line",
+        reason=pl.when(~pl.col("_same")).then(pl.format(
+            DUPLICATE_REASON + " (tag {}; kept line {})",
+            pl.col("tag").cast(pl.String), pl.col("_kept"))))
+    conflicts = later.filter(pl.col("reason").is_not_null()).select(
+        line=pl.col("source_line"), reason="reason")
     samples = s.filter("_new").drop("_new", "_first", "_same").with_columns(
         pl.col("tag").cast(pl.String))
-    return _Deduped(samples, dropped, conflicts, n_back, where)
+    return _Deduped(samples, dropped, conflicts, n_back, where, later)
 
 
 # --------------------------------------------------------------------------
@@ -827,8 +933,9 @@ def parse_export(path: str | os.PathLike, *, timezone: str | None = None,
     ------
     ExportError
         The file cannot be used at all (missing, empty, unknown column layout,
-        naive time stamps without a time zone). The message is one line that
-        names the file.
+        a header the csv module cannot parse, an unreadable Parquet file or a
+        Parquet column of a non-scalar type, naive time stamps without a time
+        zone). The message is one line that names the file.
     ValueError
         ``timezone`` is not a known IANA zone.
     """
@@ -848,7 +955,7 @@ def _finish(path: str, shape: str, good: pl.DataFrame, bad: list[pl.DataFrame],
     quarantine = raw.select(source_file=pl.lit(path), line="line", raw="raw",
                             reason="reason").cast(QUARANTINE_SCHEMA).sort("line", "reason")
     return ParsedExport(path, shape, samples, quarantine, dropped, d.backwards, tuple(notes),
-                        raw_source)
+                        raw_source, d.later)
 
 
 def _raw_lines(source: pl.DataFrame | None, lines: pl.Series) -> pl.DataFrame:
@@ -875,14 +982,16 @@ def _slices(frame: pl.DataFrame, chunk_rows: int | None) -> Iterator[pl.DataFram
 def _samples_from(path: str, lay: _Layout, fields: pl.DataFrame, timezone: str | None,
                   states: frozenset[str], decimal_comma: bool, naive_error: bool
                   ) -> tuple[pl.DataFrame, pl.DataFrame]:
-    """Samples and bad rows from a frame with ``line`` and the file's columns."""
+    """Samples and bad rows from a frame with ``line`` and the file's columns as
+    ``f0..f{n-1}`` (by position, see :class:`_Layout`)."""
     if lay.shape == "long":
         cols = {lay.time_col: "time", lay.tag_col: "tag", lay.value_col: "value"}
         if lay.status_col:
             cols[lay.status_col] = "status"
-        frame = fields.select("line", *[pl.col(k).alias(v) for k, v in cols.items()])
+        frame = fields.select("line", *[pl.col(lay.field(k)).alias(v) for k, v in cols.items()])
         return _long_samples(frame, lay, path, timezone, states, decimal_comma, naive_error)
-    frame = fields.select("line", pl.col(lay.time_col).alias("time"), *lay.tag_cols)
+    frame = fields.select("line", pl.col(lay.field(lay.time_col)).alias("time"),
+                          *[lay.field(c) for c in lay.tag_cols])
     return _wide_samples(frame, lay, path, timezone, states, decimal_comma, naive_error)
 
 
@@ -891,28 +1000,78 @@ def _parse_csv(path: str, timezone: str | None, states: frozenset[str],
     lines, notes = _read_csv_lines(path)
     header = lines["raw"][0]
     sep = _sniff_separator(header)
-    columns = next(csv.reader([header], delimiter=sep))
+    columns = _split_header(header, sep, path)
     lay = _detect_layout(columns, path)
     body = lines.slice(1)
     if body.is_empty():
         notes.append(f"{path}: header only, no data rows")
     for k, part in enumerate(_slices(body, chunk_rows)):
         fields, malformed = _split_fields(part, len(columns), sep)
-        fields = fields.rename({f"f{i}": c for i, c in enumerate(columns)})
         good, bad = _samples_from(path, lay, fields, timezone, states, sep != ",", k == 0)
         yield _finish(path, lay.shape, good, [malformed.select("line", "reason"), bad],
                       lines, notes)
         notes = []
 
 
+#: Exceptions that are never turned into a file's error: the process must stop.
+_FATAL = (KeyboardInterrupt, SystemExit, GeneratorExit, MemoryError)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return " ".join(text.splitlines()[0].split()) if text else type(exc).__name__
+
+
+def _read_parquet(path: str) -> pl.DataFrame:
+    """The whole Parquet file, or :class:`ExportError`.
+
+    A damaged file can make the Rust reader panic. The panic surfaces as
+    ``pyo3_runtime.PanicException``, a ``BaseException``, so every exception
+    but the :data:`_FATAL` ones is a file error here. Any later read of the
+    file (lazy or not) must be guarded the same way.
+    """
+    try:
+        return pl.read_parquet(path)
+    except _FATAL:
+        raise
+    except BaseException as exc:  # noqa: BLE001 - any reader failure, panics included
+        raise ExportError(f"{path}: not a readable Parquet file ({_first_line(exc)})") from None
+
+
+#: dtypes a Parquet tag, value or status column may have (besides numbers).
+_SCALAR_TYPES = (pl.String, pl.Categorical, pl.Enum, pl.Boolean, pl.Null, pl.Date,
+                 pl.Datetime, pl.Time)
+
+
+def _scalar_columns(table: pl.DataFrame, lay: _Layout, path: str) -> pl.DataFrame:
+    """Check the dtypes of the non-time columns; decode binary (UTF-8) columns.
+
+    Numbers, text, categoricals, booleans, dates/times and all-null columns
+    are read as they are. Lists, arrays, structs, durations and other types
+    that hold no single value or text are an :class:`ExportError` naming the
+    column and its type. (The time column is checked by :func:`_resolve_times`.)
+    """
+    used = (lay.tag_col, lay.value_col, lay.status_col) if lay.shape == "long" else lay.tag_cols
+    for name in (c for c in used if c is not None):
+        dtype = table.schema[name]
+        if dtype == pl.Binary:
+            try:
+                table = table.with_columns(pl.col(name).cast(pl.String))
+            except pl.exceptions.PolarsError:
+                raise ExportError(f"{path}: column {name!r} holds bytes that are not UTF-8 "
+                                  f"text") from None
+        elif not (dtype.is_numeric() or isinstance(dtype, _SCALAR_TYPES)):
+            raise ExportError(f"{path}: column {name!r} has type {dtype}; tag, value and "
+                              f"status columns must hold numbers or text")
+    return table
+
+
 def _parse_parquet(path: str, timezone: str | None, states: frozenset[str],
                    chunk_rows: int | None) -> Iterator[ParsedExport]:
-    try:
-        table = pl.read_parquet(path)
-    except Exception as exc:  # noqa: BLE001 - any reader failure is a file error
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ExportError(f"{path}: not a readable Parquet file ({first})") from None
+    table = _read_parquet(path)
     lay = _detect_layout(table.columns, path)
+    table = _scalar_columns(table, lay, path)
+    table.columns = [f"f{i}" for i in range(table.width)]  # by position, see _Layout
     # line numbers as if the file were a CSV with a header: row i -> line i + 2
     table = table.with_row_index("line", offset=2).with_columns(pl.col("line").cast(pl.Int64))
     notes = [f"{path}: no data rows"] if table.is_empty() else []
@@ -1018,7 +1177,7 @@ def file_sha256(path: str | os.PathLike, chunk: int = 1 << 22) -> str:
     return h.hexdigest()
 
 
-def _one_line(exc: BaseException, path: str) -> str:
+def _one_line(exc: BaseException | str, path: str) -> str:
     text = " ".join(str(exc).split()) or type(exc).__name__
     return text if path in text else f"{path}: {text}"
 
@@ -1053,20 +1212,47 @@ def _write_parsed(store, parsed: ParsedExport) -> tuple[int, int, int]:
 
     Samples whose (tag, ts) is already stored (by an earlier file or slice)
     are duplicates when value and status agree, else quarantined: the stored
-    sample came first and wins.
+    sample came first and wins. For such a key, *every* row of the slice,
+    including those the slice's own de-duplication set aside (``_later``), is
+    compared with the stored sample, not with the slice's first row, so that
+    slicing a file changes nothing: the result is that of a whole-file parse.
+    A conflict with a sample stored from the same file is worded as in a
+    whole-file parse ("kept line N"), so re-ingesting never adds a second
+    quarantine row for the same line.
     """
-    clash = store.conflicting_samples(parsed.samples)
+    later = parsed._later
+    rows = parsed.samples
+    if later is not None and later.height:
+        rows = pl.concat([rows, later.select(list(SAMPLE_SCHEMA))])
+    clash = store.conflicting_samples(rows)
+    quarantine, redone_conflicts = parsed.quarantine, 0
+    if later is not None and later.height and clash.height:
+        # keys stored before this slice with another value: drop the slice's own verdicts
+        # on their later rows (those are re-judged against the stored sample just above)
+        stored = rows.join(clash.select("source_line", "tag"), on=["source_line", "tag"],
+                           how="semi").select("tag", "ts").unique()
+        redo = later.join(stored, on=["tag", "ts"], how="semi").filter(
+            pl.col("reason").is_not_null()).select(line="source_line", reason="reason")
+        redone_conflicts = redo.height
+        if redone_conflicts:
+            quarantine = quarantine.join(redo, on=["line", "reason"], how="anti")
+    same_file = pl.col("stored_file") == parsed.path
     clash_q = clash.select(
         line=pl.col("source_line"),
-        reason=pl.format(DUPLICATE_REASON + " (tag {}; already stored from {} line {})",
-                         pl.col("tag"), pl.col("stored_file"), pl.col("stored_line")))
+        reason=pl.when(same_file).then(pl.format(
+            DUPLICATE_REASON + " (tag {}; kept line {})", pl.col("tag"), pl.col("stored_line")))
+        .otherwise(pl.format(DUPLICATE_REASON + " (tag {}; already stored from {} line {})",
+                             pl.col("tag"), pl.col("stored_file"), pl.col("stored_line"))))
     clash_q = clash_q.join(parsed.raw_for(clash_q["line"]), on="line", how="left").select(
         source_file=pl.lit(parsed.path), line="line", raw="raw", reason="reason")
     # conflicting keys are stored already, so the insert skips them too
     inserted = store.insert_new_samples(parsed.samples)
-    quarantine = pl.concat([parsed.quarantine, clash_q.cast(QUARANTINE_SCHEMA)])
+    quarantine = pl.concat([quarantine, clash_q.cast(QUARANTINE_SCHEMA)])
     store.insert_quarantine(quarantine)
-    duplicates = parsed.duplicates_dropped + parsed.samples.height - inserted - clash.height
+    # every row of `rows` is inserted, a duplicate or a conflict; a re-judged later row
+    # that the slice called a conflict but equals the stored sample is a duplicate now
+    duplicates = (parsed.duplicates_dropped + parsed.samples.height - inserted - clash.height
+                  + redone_conflicts)
     return inserted, duplicates, quarantine.height
 
 
@@ -1105,10 +1291,16 @@ def ingest_exports(store, paths_or_globs, *, timezone: str | None = None,
     run is interrupted midway through a file, the slices already committed are
     valid, de-duplicated samples and the file is not recorded as ingested, so
     the next run reads it again and completes it (re-ingest is idempotent). A file that fails
-    gets a one-line error in the report and the others go on. A sample whose
-    (tag, ts) is already stored with the same value and status counts as a
-    duplicate; with a different value it is quarantined (the stored value
-    wins: first ingested is kept).
+    gets a one-line error in the report and the others go on; a failure that is
+    not a documented file error (:class:`ExportError`, ``OSError``), i.e. a bug
+    or a library fault, is reported the same way, naming the exception type,
+    and its traceback is logged (logger ``valvediag.ingest``, level ERROR).
+    Interrupts, ``SystemExit`` and ``MemoryError`` still stop the run. A sample
+    whose (tag, ts) is already stored with the same value and status counts as
+    a duplicate; with a different value it is quarantined (the stored value
+    wins: first ingested is kept). Within a file the outcome does not depend on
+    ``chunk_rows``: every row of a key stored by an earlier slice is compared
+    with the stored sample, as a whole-file parse compares it with the first.
     """
     _check_timezone(timezone)
     files, errors = expand_paths(paths_or_globs)
@@ -1116,8 +1308,17 @@ def ingest_exports(store, paths_or_globs, *, timezone: str | None = None,
     for i, path in enumerate(files, 1):
         try:
             res = _ingest_one(store, path, timezone, force, chunk_rows)
-        except (ExportError, OSError, pl.exceptions.PolarsError) as exc:
+        except (ExportError, OSError) as exc:
             res = FileIngest(path, error=_one_line(exc, path))
+        except _FATAL:
+            raise
+        except BaseException as exc:  # noqa: BLE001 - a bug must not stop the batch either
+            # not a documented file error (a PolarsError, a Rust panic, a bug): the file
+            # gets a one-line error and the others go on, but the traceback is logged
+            kind = f"{type(exc).__module__}.{type(exc).__qualname__}"
+            _log.error("unexpected %s while ingesting %s", kind, path, exc_info=exc)
+            res = FileIngest(path, error=_one_line(
+                f"{path}: unexpected {kind} while ingesting the file: {_first_line(exc)}", path))
         results.append(res)
         if progress is not None:
             progress(i, len(files), path)
