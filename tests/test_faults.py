@@ -225,6 +225,36 @@ def test_second_scan_waits_a_bounded_time_for_the_lock(tmp_path):
         holder.wait()
 
 
+_TRY = textwrap.dedent("""
+    import sys
+    from valvediag.scanlock import ScanLock, ScanLockedError
+    try:
+        ScanLock(sys.argv[1]).acquire()
+        print("got it")
+    except ScanLockedError:
+        print("busy")
+""")
+
+
+def _other_process_gets(db: Path) -> bool:
+    out = subprocess.run([sys.executable, "-c", _TRY, str(db)], capture_output=True, text=True,
+                         timeout=60).stdout.strip()
+    assert out in ("got it", "busy"), out
+    return out == "got it"
+
+
+def test_lock_is_reentrant_in_one_process_and_held_until_the_last_release(tmp_path):
+    """The command line holds the lock around the flow, which takes it again."""
+    db = tmp_path / "plant.duckdb"
+    outer = ScanLock(db).acquire()
+    inner = ScanLock(db, timeout=0).acquire()       # same process: granted at once
+    assert outer.held and inner.held
+    inner.release()
+    assert not _other_process_gets(db)              # the outer one still holds it
+    outer.release()
+    assert _other_process_gets(db)
+
+
 def test_lock_of_a_killed_process_is_free_at_once(tmp_path):
     db = tmp_path / "plant.duckdb"
     holder = _holder(db, 60)

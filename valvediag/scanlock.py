@@ -27,12 +27,20 @@ import fcntl
 import json
 import os
 import socket
+import threading
 import time
 from pathlib import Path
 
 from .store import StoreLockedError
 
 __all__ = ["ScanLock", "ScanLockedError", "lock_path", "owner_id"]
+
+#: Locks this process holds: lock file -> [descriptor, holders]. A second
+#: ScanLock of the same store in the same process (the command line holds the
+#: lock around the flow, which takes it again) shares the descriptor: ``flock``
+#: would refuse it a second open of the file.
+_HELD: dict[Path, list] = {}
+_HELD_GUARD = threading.Lock()
 
 
 class ScanLockedError(StoreLockedError):
@@ -101,6 +109,10 @@ class ScanLock:
     def acquire(self) -> ScanLock:
         """Take the lock, waiting at most ``timeout`` seconds.
 
+        Within one process the lock is reentrant: while one ScanLock of the
+        store is held, another one of the same store is granted at once, and
+        the file lock is given up when the last of them is released.
+
         Returns
         -------
         ScanLock
@@ -108,6 +120,12 @@ class ScanLock:
         """
         if self._fd is not None:
             return self
+        with _HELD_GUARD:
+            shared = _HELD.get(self.path)
+            if shared is not None:
+                shared[1] += 1
+                self._fd = shared[0]
+                return self
         self.path.parent.mkdir(parents=True, exist_ok=True)
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         deadline = time.monotonic() + self.timeout
@@ -124,6 +142,8 @@ class ScanLock:
                 "since": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")}
         os.ftruncate(fd, 0)
         os.pwrite(fd, json.dumps(info).encode(), 0)
+        with _HELD_GUARD:
+            _HELD[self.path] = [fd, 1]
         self._fd = fd
         return self
 
@@ -140,6 +160,13 @@ class ScanLock:
         if self._fd is None:
             return
         fd, self._fd = self._fd, None
+        with _HELD_GUARD:
+            shared = _HELD.get(self.path)
+            if shared is not None and shared[0] == fd:
+                shared[1] -= 1
+                if shared[1] > 0:
+                    return
+                del _HELD[self.path]
         try:
             os.ftruncate(fd, 0)
             fcntl.flock(fd, fcntl.LOCK_UN)

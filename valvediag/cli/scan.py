@@ -216,7 +216,13 @@ def run(args) -> int:
         os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "ERROR")
     from pipelines.nightly import nightly_scan, progress_to
 
-    with progress_to(_StageProgress()), _api_for_workers(args):
+    from ..scanlock import ScanLock, ScanLockedError
+
+    try:    # held around the flow (which takes it again), so a scan started at the same
+        lock = ScanLock(args.db, timeout=args.wait).acquire()   # time fails here, in one line
+    except ScanLockedError as exc:
+        raise CommandError(str(exc)) from None
+    with lock, progress_to(_StageProgress()), _api_for_workers(args):
         state = nightly_scan(exports=exports, loops=args.loops, db=args.db, out=args.out,
                              window_hours=config.window_hours, method=config.method,
                              min_cycles=config.min_cycles, timezone=config.timezone,
