@@ -69,9 +69,9 @@ _HELD_ROLES = ("sp", "mode")
 
 
 def _key_bounds(samples: pl.DataFrame) -> dict:
-    """Bounds of the (tag, ts) keys of incoming samples, for zone-map pruning."""
+    """Time bounds and tag list of incoming samples, pushed into the scan of ``samples``."""
     return {"ts_min": samples["ts"].min(), "ts_max": samples["ts"].max(),
-            "tag_min": samples["tag"].min(), "tag_max": samples["tag"].max()}
+            "tags": samples["tag"].unique().sort().to_list()}
 
 
 class StoreLockedError(RuntimeError):
@@ -268,17 +268,34 @@ class Store:
         polars.DataFrame
             ``source_line, tag, stored_file, stored_line``.
         """
+        empty = pl.DataFrame(schema={"source_line": pl.Int64, "tag": pl.String,
+                                     "stored_file": pl.String, "stored_line": pl.Int64})
         if samples.is_empty():
-            return pl.DataFrame(schema={"source_line": pl.Int64, "tag": pl.String,
-                                        "stored_file": pl.String, "stored_line": pl.Int64})
+            return empty
         with self._registered("incoming_samples", samples):
+            if not self._may_overlap(samples):
+                return empty
             return self.query("samples_conflicting", **_key_bounds(samples))
+
+    def _may_overlap(self, samples: pl.DataFrame) -> bool:
+        """Whether a stored sample of an incoming tag lies in that tag's incoming time range.
+
+        When False no incoming key can be stored, so the anti-join (a hash
+        join whose cost grows with the whole table) is skipped.
+        """
+        bounds = samples.group_by("tag").agg(pl.col("ts").min().alias("ts_min"),
+                                             pl.col("ts").max().alias("ts_max"))
+        with self._registered("incoming_bounds", bounds):
+            return bool(self.con.execute(load_sql("samples_may_overlap"),
+                                         {"tags": bounds["tag"].to_list()}).fetchall()[0][0])
 
     def insert_new_samples(self, samples: pl.DataFrame) -> int:
         """Insert samples whose (tag, ts) is not stored yet; return how many [rows]."""
         if samples.is_empty():
             return 0
         with self._registered("incoming_samples", samples):
+            if not self._may_overlap(samples):
+                return int(self._run("samples_insert_all") or 0)
             return int(self._run("samples_insert_new", **_key_bounds(samples)) or 0)
 
     def insert_quarantine(self, rows: pl.DataFrame) -> int:
