@@ -17,6 +17,9 @@ Notes
   anti-join in one transaction per file, not with a PRIMARY KEY, because
   DuckDB's ART index for it costs ~5x insert time and ~9x file size (measured
   on 3 M rows). :meth:`Store.duplicate_keys` checks the invariant.
+* Each connection caps DuckDB's buffer pool (:data:`MEMORY_LIMIT`: 2 GB for
+  the writer, 512 MB for a reader; ``VALVEDIAG_DUCKDB_MEMORY`` overrides);
+  larger joins spill to a temporary directory beside the file.
 * Time arguments must be timezone-aware :class:`datetime.datetime` objects;
   naive ones are refused rather than guessed.
 * The SQL directory is ``<repo>/sql`` next to the package (editable install);
@@ -66,6 +69,12 @@ VERDICT_COLUMNS: dict[str, pl.DataType] = {
 _JSON_COLUMNS = ("evidence", "quality")
 _SAMPLE_FRAME_SCHEMA = {"ts": pl.Datetime("us", "UTC"), "value": pl.Float64, "status": pl.String}
 _HELD_ROLES = ("sp", "mode")
+#: DuckDB's buffer-pool limit per connection: writer, reader. DuckDB's own
+#: default (80 % of RAM per database instance) lets a long ingest and every
+#: reader of the analysis cache gigabytes each. Environment variable
+#: ``VALVEDIAG_DUCKDB_MEMORY`` (e.g. ``4GB``) sets both.
+MEMORY_LIMIT = (os.environ.get("VALVEDIAG_DUCKDB_MEMORY", "2GB"),
+                os.environ.get("VALVEDIAG_DUCKDB_MEMORY", "512MB"))
 
 
 def _key_bounds(samples: pl.DataFrame) -> dict:
@@ -188,6 +197,7 @@ class Store:
                                        f"(DuckDB allows one writer): {first}") from None
             raise
         self.con.execute("SET TimeZone = 'UTC'")
+        self.con.execute(f"SET memory_limit = '{MEMORY_LIMIT[1 if read_only else 0]}'")
         if not read_only:
             self.con.execute(load_sql("schema"))
             if not self.con.execute(load_sql("runs_has_owner")).fetchall()[0][0]:
