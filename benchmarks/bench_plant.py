@@ -75,8 +75,6 @@ REPO = Path(__file__).resolve().parent.parent
 TARGET_S = 300.0
 TARGET_MB = 4096.0
 MARKER = "bench_plant.json"
-#: Prefect's cap on the flow's thread pool (tasks.runner.thread_pool_max_workers); unset,
-#: the pool starts a thread per submitted task. Passed on to the runs when set.
 # Parquet export plus store, per nominal sample (measured: ~4 + ~4 bytes); with margin
 _BYTES_PER_SAMPLE = 20
 
