@@ -49,8 +49,8 @@ single process (``getrusage`` maxrss) is printed too.
 The store and outputs go to ``--work-dir`` (default
 ``out/bench_plant/run-<loops>x<days>d-<ts>s``); the store is deleted at the
 end unless ``--keep``. A lock file in both directories keeps two runs apart.
-Quick run: ``--loops 50 --speedup-loops 20`` (about 2 minutes). The full
-default took 25 minutes on two cores (the README has the figures), plus one
+Quick run: ``--loops 50 --speedup-loops 20`` (about 3 minutes). The full
+default took 18 minutes on two cores (the README has the figures), plus one
 minute to generate the plant the first time (647 MB of Parquet; the store
 takes 530 MB). Exits 0 when the runs complete (whether or not the targets
 are met), 1 when a run fails or another run holds the directories, 2 on bad

@@ -197,7 +197,7 @@ def _api_for_workers(args):
     finally:
         from prefect.logging.handlers import APILogHandler
 
-        APILogHandler.flush()    # the run's last log lines, before the server goes
+        APILogHandler().flush()  # the run's last log lines, before the server goes
         os.environ.pop("PREFECT_API_URL", None)
         server.stop()
 
