@@ -20,24 +20,25 @@ local Dask cluster of 2 worker processes against 1 (``valvediag scan
    ``valvediag scan`` and the nightly deployment run) with the same
    arguments as ``valvediag scan --exports <plant>/exports --loops
    <plant>/loops.csv --db <fresh store> --out <dir>``: ingest into a fresh
-   DuckDB store, plan, analyse every loop (threads of the flow process, the
-   default; ``--workers N`` for a local Dask cluster), rank, persist, write
+   DuckDB store, plan, analyse every loop (batches of loops on worker
+   processes of the flow, the default; ``--workers N`` for a local Dask
+   cluster), rank, persist, write
    the outputs and artifacts. Stage times come from the flow's progress
    reports (:func:`pipelines.nightly.progress_to`): ingest, then plan +
-   analysis (with threads the first loops run while the others are still
-   being submitted, so planning and analysis are one figure), then rank +
+   analysis (including the start of the worker processes), then rank +
    persist + outputs. The Prefect API server the flow reports to is started
    in the child before the clock starts (its start-up is printed, not timed)
    and is private to the benchmark (its ``PREFECT_HOME`` is in the work
    directory), so runs never land in a user's Prefect server.
-   The flow analyses on a thread pool of
-   :data:`pipelines.nightly.ANALYSIS_THREADS` threads (twice the cores).
+   The flow analyses on :data:`pipelines.nightly.ANALYSIS_PROCESSES` worker
+   processes (one per core), :func:`pipelines.nightly.loop_batches` loops
+   per task.
 3. **Dask speed-up** (timed). The first ``--speedup-loops`` loops of the
    registry are scanned again, on the store of step 2 (the exports are
    already ingested and are skipped), once with ``workers=1`` and once with
    ``workers=2``: the flow's real DaskTaskRunner path (partitions exported
    to Parquet, a LocalCluster of single-threaded worker processes, one
-   ``analyse-partition`` task per loop). Printed: the analysis stage (plan,
+   ``analyse-partitions`` task per batch of loops). Printed: the analysis stage (plan,
    partition export, cluster start and the tasks) and the tasks alone.
 
 Peak memory is sampled every 0.2 s as the sum of the resident set sizes of

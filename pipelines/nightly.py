@@ -8,12 +8,15 @@ The flow only orchestrates; every step is a :mod:`valvediag` function::
     ingest          Store.abort_stale_runs, valvediag.ingest.ingest_exports
                     (+ Store.replace_loops)                                   retries 2
     plan            valvediag.scan.plan_loops (+ Store.start_run: status 'running')
-    analyse-loop    valvediag.scan.load_loop_frames + analyse_loop, one mapped task per loop
-                    (thread pool of the flow process), or, with ``workers`` or
-                    ``dask_address``:
+    analyse-loops   valvediag.scan.analyse_stored_loops: one mapped task per batch of
+                    loops (:func:`loop_batches`), each reading its loops from the store
+                    read-only, on a pool of worker processes (Prefect's
+                    ProcessPoolTaskRunner, ``processes``, default one per core; threads
+                    of the flow process for a handful of loops), or, with ``workers``
+                    or ``dask_address``:
     export-partitions  valvediag.partition.export_partitions: each loop's window to Parquet
-    analyse-partition  valvediag.partition.load_partition_frames + analyse_loop, one task
-                    per loop on Dask (prefect-dask's DaskTaskRunner)
+    analyse-partitions valvediag.partition.load_partition_frames + analyse_loop, one task
+                    per batch of loops on Dask (prefect-dask's DaskTaskRunner)
     rank            valvediag.scan.rank_results
     persist         valvediag.scan.persist_results: the only task that writes results
     write-outputs   valvediag.outputs.write_outputs: verdicts.json, work_orders.csv, report.html
@@ -29,11 +32,18 @@ Notes
 DuckDB lets one process hold the store for writing. Every task opens the
 store, works and closes it; only ``ingest``, ``plan``, ``persist`` and
 ``finish-run`` write, one at a time, in the flow's process. Without Dask the
-mapped analyses run in the flow process's thread pool, each reading its loop
-with its own read-only connection. With Dask the workers never open the
-DuckDB file: they read the Parquet partitions that ``export-partitions``
-wrote (on a real cluster, ``partitions`` must be a directory every worker
-can read) and return their results to the flow.
+mapped analyses run in worker processes, each batch reading its loops with
+its own read-only connection while no process writes. With Dask the workers
+never open the DuckDB file: they read the Parquet partitions that
+``export-partitions`` wrote (on a real cluster, ``partitions`` must be a
+directory every worker can read) and return their results to the flow.
+
+Loops are analysed in batches of up to :data:`BATCH_LOOPS` per task: a
+Prefect task run costs 0.1-0.5 s on a worker process (its states go to the
+API), about as much as the numerics of one loop-day at 1 s, so one task per
+loop would spend half the workers' time on bookkeeping. Batches are small
+enough that every worker gets several (the last batch to finish bounds the
+stage).
 
 Faults: the flow holds the store's scan lock for the whole run, so a second
 scan on the same store waits ``wait_s`` seconds and then fails with a
@@ -57,8 +67,7 @@ from pathlib import Path
 from prefect import flow, get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 from prefect.cache_policies import NO_CACHE
-from prefect.futures import as_completed
-from prefect.task_runners import ThreadPoolTaskRunner
+from prefect.task_runners import ProcessPoolTaskRunner, ThreadPoolTaskRunner
 from prefect.utilities.annotations import unmapped
 
 from valvediag.ingest import expand_paths, ingest_exports
@@ -66,22 +75,31 @@ from valvediag.outputs import write_outputs
 from valvediag.partition import (export_partitions, load_partition_frames, partition_dir,
                                  remove_partitions)
 from valvediag.registry import LoopSpec, read_loops_csv
-from valvediag.scan import (LoopJob, LoopResult, ScanConfig, analyse_loop, load_loop_frames,
+from valvediag.scan import (LoopJob, LoopResult, ScanConfig, analyse_loop, analyse_stored_loops,
                             persist_results, plan_loops, rank_results)
 from valvediag.scanlock import ScanLock, owner_id
 from valvediag.store import VERDICTS, Store, StoreLockedError
 
-__all__ = ["nightly_scan", "progress_to", "FLOW_NAME", "TABLE_ARTIFACT_KEY",
+__all__ = ["nightly_scan", "progress_to", "loop_batches", "FLOW_NAME", "TABLE_ARTIFACT_KEY",
            "REPORT_ARTIFACT_KEY", "TABLE_ARTIFACT_MAX_ROWS"]
 
 FLOW_NAME = "nightly-scan"
 TABLE_ARTIFACT_KEY = "valvediag-ranked-loops"
 REPORT_ARTIFACT_KEY = "valvediag-report"
-#: Threads analysing loops without Dask. Prefect's default pool starts a thread
-#: per submitted task, so a plant of 1,000 loops held ~1,000 loops in memory at
-#: once (9.7 GB measured); the numba kernels hold the GIL, so more threads than
-#: twice the cores only cost memory.
+#: Threads of the flow process (analysis of fewer than :data:`MIN_LOOPS_FOR_PROCESSES`
+#: loops, or ``processes=0``). Prefect's default pool starts a thread per
+#: submitted task, so a plant of 1,000 loops held ~1,000 loops in memory at once
+#: (9.7 GB measured); Python code holds the GIL, so more threads only cost memory.
 ANALYSIS_THREADS = 2 * (os.cpu_count() or 1)
+#: Worker processes analysing loops without Dask (default: one per core).
+ANALYSIS_PROCESSES = os.cpu_count() or 1
+#: Fewer loops than this are analysed on threads of the flow process: starting
+#: worker processes (importing numpy, polars, numba kernels) costs seconds.
+MIN_LOOPS_FOR_PROCESSES = 16
+#: Most loops in one analysis task (see the module notes).
+BATCH_LOOPS = 20
+#: Batches per worker at least, so that the workers finish close together.
+BATCHES_PER_WORKER = 4
 #: Rows of the ranked-loops table artifact; the report has every loop.
 TABLE_ARTIFACT_MAX_ROWS = 1000
 
@@ -198,11 +216,42 @@ def plan(db: str, loops: list[LoopSpec], config: ScanConfig, exports: list[str]
     return run_id, jobs
 
 
-@task(name="analyse-loop", retries=1, retry_delay_seconds=2, retry_condition_fn=_transient,
-      cache_policy=NO_CACHE, task_run_name="analyse-{job.spec.loop}")
-def analyse(db: str, job: LoopJob, config: ScanConfig) -> LoopResult:
-    """One loop: read its samples (read-only) and diagnose them (pure numerics)."""
-    return analyse_loop(job, load_loop_frames(db, job), config)
+def loop_batches(n_loops: int, workers: int, batch_loops: int = BATCH_LOOPS
+                 ) -> list[range]:
+    """Split ``n_loops`` loops into consecutive batches for ``workers`` workers.
+
+    Parameters
+    ----------
+    n_loops : int
+        Loops to analyse.
+    workers : int
+        Workers (processes or Dask workers) sharing them.
+    batch_loops : int, default BATCH_LOOPS
+        Most loops per batch.
+
+    Returns
+    -------
+    list of range
+        Index ranges into the job list, in order, covering it once; at least
+        :data:`BATCHES_PER_WORKER` batches per worker when there are loops
+        enough, none longer than ``batch_loops``.
+    """
+    if n_loops <= 0:
+        return []
+    per = max(1, min(int(batch_loops), n_loops // (max(int(workers), 1) * BATCHES_PER_WORKER)))
+    return [range(a, min(a + per, n_loops)) for a in range(0, n_loops, per)]
+
+
+def _batch_label(jobs: Sequence[LoopJob]) -> str:
+    first, last = jobs[0].spec.loop, jobs[-1].spec.loop
+    return first if len(jobs) == 1 else f"{first}..{last} ({len(jobs)} loops)"
+
+
+@task(name="analyse-loops", retries=1, retry_delay_seconds=2, retry_condition_fn=_transient,
+      cache_policy=NO_CACHE, task_run_name="analyse-{label}")
+def analyse(db: str, jobs: list[LoopJob], config: ScanConfig, label: str = "") -> list[LoopResult]:
+    """A batch of loops: read each from the store (read-only) and diagnose it."""
+    return analyse_stored_loops(db, jobs, config)
 
 
 @task(name="export-partitions", retries=1, retry_delay_seconds=5,
@@ -216,11 +265,13 @@ def export(db: str, run_id: str, jobs: list[LoopJob], partitions: str | None) ->
     return paths
 
 
-@task(name="analyse-partition", retries=1, retry_delay_seconds=2, cache_policy=NO_CACHE,
-      task_run_name="analyse-{job.spec.loop}")
-def analyse_partition(path: str, job: LoopJob, config: ScanConfig) -> LoopResult:
-    """One loop on a Dask worker: read its Parquet partition and diagnose it."""
-    return analyse_loop(job, load_partition_frames(path, job), config)
+@task(name="analyse-partitions", retries=1, retry_delay_seconds=2, cache_policy=NO_CACHE,
+      task_run_name="analyse-{label}")
+def analyse_partitions(paths: list[str], jobs: list[LoopJob], config: ScanConfig,
+                       label: str = "") -> list[LoopResult]:
+    """A batch of loops on a Dask worker: read each one's Parquet partition and diagnose it."""
+    return [analyse_loop(job, load_partition_frames(path, job), config)
+            for path, job in zip(paths, jobs)]
 
 
 def _dask_runner(workers: int | None, dask_address: str | None):
@@ -235,25 +286,81 @@ def _dask_runner(workers: int | None, dask_address: str | None):
                                           "processes": True, "dashboard_address": ":0"})
 
 
+def _dask_workers(runner, default: int) -> int:
+    """Workers of the runner's cluster (for batch sizes), else ``default``."""
+    try:
+        return max(len(runner.client.scheduler_info()["workers"]), 1)
+    except Exception:   # noqa: BLE001 - only sizes the batches
+        return default
+
+
+def _collect(futures, batches: list[range], total: int) -> list[LoopResult]:
+    """Wait for the batch futures, reporting loops done; results in job order."""
+    _report("analyse", 0, total)
+    pending, done = list(zip(futures, batches)), 0
+    while pending:
+        still = [(f, b) for f, b in pending if not f.wrapped_future.done()]
+        if len(still) < len(pending):
+            done += sum(len(b) for f, b in pending if f.wrapped_future.done())
+            _report("analyse", done, total)
+        else:
+            time.sleep(0.05)
+        pending = still
+    return [r for f in futures for r in f.result()]
+
+
+@contextlib.contextmanager
+def _api_for_processes() -> Iterator[None]:
+    """Let worker processes report to the API this flow reports to.
+
+    Without ``PREFECT_API_URL`` Prefect serves the flow from a temporary
+    server it started in a subprocess; a worker process would try to start
+    its own (and time out). Its address is handed to the workers here.
+    """
+    from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
+
+    if get_current_settings().api.url:
+        yield
+        return
+    from prefect.server.api.server import SubprocessASGIServer
+
+    server = SubprocessASGIServer()      # the temporary server of this process
+    if not server.running:
+        yield
+        return
+    with temporary_settings(updates={PREFECT_API_URL: server.api_url}):
+        yield
+
+
+def _analyse_here(db: str, jobs: list[LoopJob], config: ScanConfig,
+                  processes: int | None) -> list[LoopResult]:
+    """Batches of loops on worker processes of this machine, or threads for a few loops."""
+    n = ANALYSIS_PROCESSES if processes is None else int(processes)
+    if n >= 1 and len(jobs) >= MIN_LOOPS_FOR_PROCESSES:
+        batches = loop_batches(len(jobs), n)
+        params = {"db": unmapped(db), "jobs": [jobs[b.start:b.stop] for b in batches],
+                  "config": unmapped(config), "label": [_batch_label(jobs[b.start:b.stop])
+                                                         for b in batches]}
+        with _api_for_processes(), ProcessPoolTaskRunner(max_workers=n) as runner:
+            return _collect(runner.map(analyse, params), batches, len(jobs))
+    batches = loop_batches(len(jobs), ANALYSIS_THREADS, batch_loops=1)
+    futures = analyse.map(unmapped(db), [jobs[b.start:b.stop] for b in batches],
+                          unmapped(config), [_batch_label(jobs[b.start:b.stop]) for b in batches])
+    return _collect(list(futures), batches, len(jobs))
+
+
 def _analyse_on_dask(db: str, run_id: str, jobs: list[LoopJob], config: ScanConfig,
                      workers: int | None, dask_address: str | None,
                      partitions: str | None) -> list[LoopResult]:
-    """Export the partitions, then run one ``analyse-partition`` task per loop on Dask."""
+    """Export the partitions, then run ``analyse-partitions`` tasks (batches of loops) on Dask."""
     paths = export(db, run_id, jobs, partitions)
     with _dask_runner(workers, dask_address) as runner:
-        futures = runner.map(analyse_partition, {"path": paths, "job": jobs,
-                                                 "config": unmapped(config)})
-        _report("analyse", 0, len(jobs))
-        pending, done = list(futures), 0
-        while pending:
-            still = [f for f in pending if not f.wrapped_future.done()]
-            if len(still) < len(pending):
-                done += len(pending) - len(still)
-                _report("analyse", done, len(jobs))
-            else:
-                time.sleep(0.1)
-            pending = still
-        return [f.result() for f in futures]
+        batches = loop_batches(len(jobs), _dask_workers(runner, int(workers or 1)))
+        params = {"paths": [paths[b.start:b.stop] for b in batches],
+                  "jobs": [jobs[b.start:b.stop] for b in batches],
+                  "config": unmapped(config),
+                  "label": [_batch_label(jobs[b.start:b.stop]) for b in batches]}
+        return _collect(runner.map(analyse_partitions, params), batches, len(jobs))
 
 
 @task(name="rank", cache_policy=NO_CACHE)
@@ -352,7 +459,7 @@ def nightly_scan(exports: str | list[str] = "data/exports", loops: str = "data/l
                  timezone: str | None = None, end: dt.datetime | None = None,
                  max_gap_s: float | None = None, workers: int | None = None,
                  dask_address: str | None = None, partitions: str | None = None,
-                 wait_s: float = 0.0) -> dict:
+                 wait_s: float = 0.0, processes: int | None = None) -> dict:
     """Scan every loop of the registry and write the maintenance report.
 
     Parameters
@@ -381,7 +488,8 @@ def nightly_scan(exports: str | list[str] = "data/exports", loops: str = "data/l
         Longest gap bridged by interpolation [s]; default per tag.
     workers : int, optional
         Analyse on a local Dask cluster of this many single-threaded worker
-        processes. Default (None or 0): threads of the flow process.
+        processes. Default (None or 0): worker processes of the flow
+        (``processes``), without Dask.
     dask_address : str, optional
         Analyse on the Dask cluster whose scheduler is at this address
         (``tcp://host:8786``); overrides ``workers``. Its workers need
@@ -393,6 +501,12 @@ def nightly_scan(exports: str | list[str] = "data/exports", loops: str = "data/l
     wait_s : float, default 0
         Longest wait for another scan of the same store to finish [s]; then
         the flow fails with a one-line error.
+    processes : int, optional
+        Worker processes analysing the loops without Dask (Prefect's
+        ProcessPoolTaskRunner); default :data:`ANALYSIS_PROCESSES` (one per
+        core). 0 analyses on threads of the flow process (no parallel
+        numerics: Python holds the GIL). Fewer than
+        :data:`MIN_LOOPS_FOR_PROCESSES` loops always run on threads.
 
     Returns
     -------
@@ -415,20 +529,24 @@ def nightly_scan(exports: str | list[str] = "data/exports", loops: str = "data/l
     distributed = bool(dask_address) or bool(workers)
     if workers is not None and int(workers) < 0:
         raise ValueError(f"workers must be >= 0, not {workers}")
+    if processes is not None and int(processes) < 0:
+        raise ValueError(f"processes must be >= 0, not {processes}")
     logger.info("exports %s; loops %s; store %s; out %s; analysis on %s", ", ".join(exports),
-                loops_csv, db, out, dask_address or (f"{workers} Dask workers" if workers
-                                                     else "threads"))
+                loops_csv, db, out, dask_address or (
+                    f"{workers} Dask workers" if workers else
+                    "threads" if processes == 0 else
+                    f"{ANALYSIS_PROCESSES if processes is None else processes} processes"))
     files, _ = expand_paths(exports)    # before the store or its lock is created
     if not files:
         raise FileNotFoundError(f"no export file matches {', '.join(exports)}")
     Path(db).parent.mkdir(parents=True, exist_ok=True)
     with ScanLock(db, timeout=wait_s):
         return _scan(logger, config, exports, loops_csv, db, out, distributed, workers,
-                     dask_address, partitions)
+                     dask_address, partitions, processes)
 
 
 def _scan(logger, config, exports, loops_csv, db, out, distributed, workers, dask_address,
-          partitions) -> dict:
+          partitions, processes) -> dict:
     """The flow's steps, run while holding the store's scan lock."""
     specs, problems = read_registry(loops_csv)
     ingested = ingest(db, exports, specs, config.timezone, partitions)
@@ -438,11 +556,7 @@ def _scan(logger, config, exports, loops_csv, db, out, distributed, workers, das
             results = _analyse_on_dask(db, run_id, jobs, config, workers, dask_address,
                                        partitions)
         else:
-            futures = analyse.map(unmapped(db), jobs, unmapped(config))
-            _report("analyse", 0, len(jobs))
-            for done, _ in enumerate(as_completed(list(futures)), 1):
-                _report("analyse", done, len(jobs))
-            results = [f.result() for f in futures]
+            results = _analyse_here(db, jobs, config, processes)
         ranked = rank(results)
         new_faults = persist(db, run_id, ranked)
         run_info = {"db": db, "loops_csv": loops_csv, "exports": exports,

@@ -1,4 +1,5 @@
-"""The nightly-scan flow with the per-loop analysis on Dask (prefect-dask's DaskTaskRunner).
+"""The nightly-scan flow with the per-loop analysis on Dask (prefect-dask's DaskTaskRunner),
+and on worker processes without Dask (Prefect's ProcessPoolTaskRunner).
 
 A real ``distributed.LocalCluster`` of two worker processes. The workers read
 the Parquet partitions that the flow exports (they never open the DuckDB
@@ -70,6 +71,38 @@ def test_two_local_workers_give_the_single_process_results(single, plant, tmp_pa
         assert store.runs()["status"].to_list() == ["complete"]
     # the run's partitions are gone; the directory for them is left empty
     assert list(partition_root(tmp_path / "plant.duckdb").iterdir()) == []
+
+
+def test_worker_processes_give_the_thread_results(single, plant, tmp_path, monkeypatch):
+    """The default analysis of a plant: batches of loops on Prefect's process pool."""
+    import pipelines.nightly as nightly
+
+    started = []
+
+    class Recorded(nightly.ProcessPoolTaskRunner):
+        def __enter__(self):
+            started.append(self._max_workers)
+            return super().__enter__()
+
+    monkeypatch.setattr(nightly, "MIN_LOOPS_FOR_PROCESSES", 1)   # 8 loops are few
+    monkeypatch.setattr(nightly, "ProcessPoolTaskRunner", Recorded)
+    ref_work, ref = single
+    summary = _scan(plant, tmp_path, processes=2)
+    assert started == [2]
+    assert len(nightly.loop_batches(N_LOOPS, 2)) == N_LOOPS    # one loop per batch here
+    assert summary["counts"] == ref["counts"]
+    assert _loops_json(tmp_path) == _loops_json(ref_work)
+    assert _stored(tmp_path) == _stored(ref_work)
+
+
+@pytest.mark.parametrize("n, workers", [(1, 2), (8, 2), (100, 2), (1000, 2), (1000, 16), (37, 3)])
+def test_loop_batches_cover_every_loop_once_in_order(n, workers):
+    from pipelines.nightly import BATCH_LOOPS, BATCHES_PER_WORKER, loop_batches
+
+    batches = loop_batches(n, workers)
+    assert [k for b in batches for k in b] == list(range(n))
+    assert max(len(b) for b in batches) <= BATCH_LOOPS
+    assert len(batches) >= min(n, BATCHES_PER_WORKER * workers)
 
 
 def test_killed_worker_is_replaced_and_its_loop_run_again(single, plant, tmp_path):

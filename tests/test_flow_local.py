@@ -94,7 +94,8 @@ def test_flow_reports_progress(first_run, registry_loops):
     analyse = [e for e in events if e[0] == "analyse"]
     assert ingest and ingest[-1][1] == ingest[-1][2] >= 1
     n = len(registry_loops)
-    assert [d for _, d, _ in analyse] == list(range(0, n + 1))
+    done = [d for _, d, _ in analyse]     # batches of loops may finish together
+    assert done[0] == 0 and done[-1] == n and done == sorted(done)
     assert {t for _, _, t in analyse} == {n}
 
 

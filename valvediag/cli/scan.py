@@ -211,6 +211,9 @@ def run(args) -> int:
     # no internet on plant machines: Prefect must not phone home (DESIGN.md)
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     os.environ.setdefault("DO_NOT_TRACK", "1")
+    # the temporary server's first start creates its database: 20 s (Prefect's
+    # default) is too short on a busy machine
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "180")
     if not args.verbose:   # Prefect's console lines (the API still records them); the
         # warnings of the run are printed below, once
         os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "ERROR")
