@@ -235,6 +235,7 @@ def bad(plant, tmp_path):
     ({"--db": "{tmp}/a_dir"}, ["a_dir", "is a directory"]),
     ({"--db": "{tmp}/a_file"}, ["a_file", "cannot open the store"]),
     ({"--out": "{tmp}/a_file"}, ["a_file", "not a directory"]),
+    ({"--processes": "-1"}, ["--processes -1", "threads"]),
 ])
 def test_scan_bad_input_one_line_error(bad, change, words, tmp_path, capsys, monkeypatch):
     args = dict(bad)

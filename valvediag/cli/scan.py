@@ -69,9 +69,12 @@ def register(sub):
     p.add_argument("--timezone", metavar="TZ",
                    help="IANA time zone of naive time stamps in the exports, e.g. Europe/Berlin "
                         "(time stamps with an offset need none)")
+    p.add_argument("--processes", type=int, metavar="N",
+                   help="worker processes analysing the loops (default: one per core; 0: "
+                        "threads of this process; plants of under 16 loops use threads)")
     p.add_argument("--workers", type=int, metavar="N",
                    help="analyse the loops on a local Dask cluster of N worker processes "
-                        "(default: threads of this process)")
+                        "instead (default: no Dask)")
     p.add_argument("--dask-address", metavar="ADDRESS",
                    help="analyse on the Dask cluster whose scheduler is at ADDRESS, e.g. "
                         "tcp://10.0.0.5:8786 (its workers need valvediag and read access to "
@@ -127,6 +130,8 @@ def _check_inputs(args):
         raise CommandError(f"--out {args.out}: exists and is not a directory")
     if args.workers is not None and args.workers < 1:
         raise CommandError(f"--workers {args.workers}: give at least 1 worker")
+    if args.processes is not None and args.processes < 0:
+        raise CommandError(f"--processes {args.processes}: give 0 (threads) or more processes")
     if args.wait < 0 or args.wait != args.wait:
         raise CommandError(f"--wait {args.wait:g}: give seconds >= 0")
     if args.dask_address and "://" not in args.dask_address:
@@ -231,7 +236,8 @@ def run(args) -> int:
                              min_cycles=config.min_cycles, timezone=config.timezone,
                              end=config.end, workers=args.workers,
                              dask_address=args.dask_address, partitions=args.partitions,
-                             wait_s=args.wait, return_state=True)
+                             wait_s=args.wait, processes=args.processes,
+                             return_state=True)
     if not state.is_completed():
         exc = state.result(raise_on_failure=False)
         detail = _one_line(exc) if isinstance(exc, BaseException) else (state.message or state.name)
