@@ -514,3 +514,132 @@ def test_interrupted_file_is_completed_by_the_next_run(tmp_path):
         report = ingest_exports(store, [path], chunk_rows=3)
         assert store.counts()["samples"] == 4 and store.duplicate_keys() == 0
     assert report.rows_inserted == 4 - first.samples.height
+
+
+# --- fast paths must give what the general path gives -------------------------
+def _general_only(monkeypatch):
+    """Force the general sort-and-dedupe path and no prefetch thread."""
+    import valvediag.ingest as ingest
+    monkeypatch.setattr(ingest, "_sorted_runs", lambda good: None)
+    monkeypatch.setattr(ingest, "_prefetched", lambda items: items)
+
+
+def _stored(db: Path) -> tuple[list, list]:
+    with Store(db) as store:
+        rows = store.con.execute(
+            "SELECT tag, ts, value, status, source_file, source_line FROM samples "
+            "ORDER BY rowid").fetchall()
+        quarantine = store.quarantine().drop("ingested_at").rows()
+    return rows, quarantine
+
+
+def _messy_parquet(path: Path) -> Path:
+    """Tags in blocks out of order, states, flags, blanks, null tags, duplicates,
+    conflicts, time running backwards and (per file) naive time stamps."""
+    t0 = dt.datetime(2024, 3, 1)
+    rows = []
+    for tag in ("PIC2.PV", "FIC1.OP", "FIC1.PV"):  # blocks, not in tag order
+        for s in range(40):
+            value = f" {s * 1.5} " if s % 7 else "Bad Input"
+            rows.append((tag, t0 + dt.timedelta(seconds=s), value,
+                         "Questionable" if s % 11 == 0 else None))
+    rows += [("FIC1.PV", t0 + dt.timedelta(seconds=3), "4.5", None),    # exact duplicate
+             ("FIC1.PV", t0 + dt.timedelta(seconds=4), "99", None),     # conflict
+             ("FIC1.OP", t0 + dt.timedelta(seconds=1), "1.5", None),    # backwards, duplicate
+             (None, t0, "1", None), ("  ", t0, "2", None),              # no tag
+             ("FIC1.PV", None, "3", None),                              # no time
+             ("FIC1.PV", t0 + dt.timedelta(seconds=50), "garbage", None),
+             ("FIC1.PV", t0 + dt.timedelta(seconds=51), "NaN", None)]
+    frame = pl.DataFrame(rows, schema={"tag": pl.String, "timestamp": pl.Datetime("us"),
+                                       "value": pl.String, "status": pl.String}, orient="row")
+    frame.write_parquet(path)
+    return path
+
+
+@pytest.mark.parametrize("clean", [True, False])
+@pytest.mark.parametrize("chunk_rows", [None, 7, 50])
+def test_fast_paths_store_what_the_general_path_stores(tmp_path, monkeypatch, clean, chunk_rows):
+    """The block-sorted shortcut, the single-file insert and the prefetch thread change
+    nothing: the same stored rows (in the same order) and the same quarantine."""
+    src = _messy_parquet(tmp_path / "messy.parquet")
+    if clean:  # only the blocks out of tag order: the shortcut takes every slice
+        frame = pl.read_parquet(src).filter(pl.col("tag").str.strip_chars() != "",
+                                            pl.col("value") != "garbage")
+        frame = frame.unique(["tag", "timestamp"], keep="first", maintain_order=True)
+        frame = frame.drop_nulls("timestamp").sort("tag", "timestamp", descending=[True, False])
+        frame.write_parquet(src)
+    again = tmp_path / "again.parquet"  # the same rows again, another file
+    shutil.copy(src, again)
+    results = []
+    for label in ("fast", "general"):
+        with monkeypatch.context() as m:
+            if label == "general":
+                _general_only(m)
+            db = tmp_path / f"{label}.duckdb"
+            with Store(db) as store:
+                first = ingest_exports(store, [src], timezone="Europe/Berlin",
+                                       chunk_rows=chunk_rows)
+                second = ingest_exports(store, [src, again], timezone="Europe/Berlin",
+                                        chunk_rows=chunk_rows, force=True)
+                assert store.duplicate_keys() == 0
+            results.append((_stored(db), [(r.rows_read, r.rows_inserted,
+                                           r.rows_skipped_duplicate, r.rows_quarantined,
+                                           r.notes) for r in first.per_file + second.per_file]))
+    assert results[0] == results[1]
+    (rows, quarantine), counts = results[0]
+    assert rows and counts[0][1] == len(rows)
+    assert bool(quarantine) != clean
+
+
+def test_parse_of_blocks_out_of_tag_order_is_sorted_like_the_general_path(tmp_path, monkeypatch):
+    src = _messy_parquet(tmp_path / "m.parquet")
+    frame = pl.read_parquet(src).filter(pl.col("tag").str.strip_chars() != "")
+    frame = frame.unique(["tag", "timestamp"], keep="first", maintain_order=True).drop_nulls()
+    frame.write_parquet(src)
+    fast = parse_export(src, timezone="UTC")
+    with monkeypatch.context() as m:
+        _general_only(m)
+        general = parse_export(src, timezone="UTC")
+    assert fast.samples.equals(general.samples)
+    assert fast.samples["tag"].is_sorted()
+    assert fast.quarantine.equals(general.quarantine)
+
+
+def test_an_error_while_parsing_a_later_slice_reaches_the_caller(tmp_path, monkeypatch):
+    """With the parse one slice ahead in a thread, an exception is still one file's error."""
+    import valvediag.ingest as ingest
+    src = _messy_parquet(tmp_path / "m.parquet")
+    real = ingest._finish
+    calls = []
+
+    def failing(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("boom in slice 2")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ingest, "_finish", failing)
+    with Store(tmp_path / "s.duckdb") as store:
+        report = ingest_exports(store, [src], timezone="UTC", chunk_rows=20)
+        assert not report.ok and "boom in slice 2" in report.errors[0]
+        assert store.ingested_files().is_empty()  # not recorded: read again next time
+        assert store.counts()["samples"] > 0      # the first slice was committed
+
+
+def test_prefetch_stops_its_worker_when_the_caller_stops():
+    import threading
+
+    from valvediag.ingest import _prefetched
+    produced = []
+
+    def items():
+        for i in range(1000):
+            produced.append(i)
+            yield i
+
+    before = threading.active_count()
+    gen = _prefetched(items())
+    assert next(gen) == 0
+    gen.close()
+    assert threading.active_count() == before
+    assert len(produced) <= 3

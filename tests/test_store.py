@@ -230,3 +230,49 @@ def test_new_since_last_run(store):
 def test_first_complete_run_reports_all_faults_as_new(store):
     _complete_run(store, [_verdict("L1", "stiction"), _verdict("L2", "no-oscillation")])
     assert store.new_since_last_run()["loop"].to_list() == ["L1"]
+
+
+def _frame(rows):
+    return pl.DataFrame(rows, schema={
+        "tag": pl.String, "ts": pl.Datetime("us", "UTC"), "value": pl.Float64,
+        "status": pl.String, "source_file": pl.String, "source_line": pl.Int64}, orient="row")
+
+
+def test_insert_new_samples_stores_rows_sorted_with_their_own_files(tmp_path):
+    store = Store(tmp_path / "empty.duckdb")
+    """An unsorted frame of two files: stored sorted by (tag, ts) (zone maps), each row
+    with its own file and line; a second insert of the same keys adds nothing."""
+    t0 = dt.datetime(2024, 1, 1, tzinfo=dt.timezone.utc)
+    rows = [("B", t0 + dt.timedelta(seconds=s), float(s), None, "b.csv", 10 + s)
+            for s in (3, 1, 2)]
+    rows += [("A", t0 + dt.timedelta(seconds=s), float(s), "Questionable", "a.csv", s)
+             for s in (2, 0)]
+    assert store.insert_new_samples(_frame(rows)) == 5
+    stored = store.con.execute("SELECT tag, ts, source_file, source_line FROM samples "
+                               "ORDER BY rowid").fetchall()
+    assert [(r[0], r[1]) for r in stored] == sorted((r[0], r[1]) for r in rows)
+    assert {(r[0], r[1]): (r[2], r[3]) for r in stored} == {
+        (r[0], r[1]): (r[4], r[5]) for r in rows}
+    assert store.insert_new_samples(_frame(rows), may_overlap=True) == 0
+    assert store.insert_new_samples(_frame(rows)) == 0
+    assert store.counts()["samples"] == 5
+
+
+def test_insert_of_one_file_binds_the_file_and_keeps_rows(tmp_path):
+    store = Store(tmp_path / "empty.duckdb")
+    t0 = dt.datetime(2024, 1, 1, tzinfo=dt.timezone.utc)
+    rows = [("A", t0 + dt.timedelta(seconds=s), float(s), None, "/x/one.parquet", s + 2)
+            for s in range(5)]
+    assert not store.may_overlap(_frame(rows))
+    assert store.insert_new_samples(_frame(rows), may_overlap=False) == 5
+    assert store.may_overlap(_frame(rows[2:3]))
+    frame = store.fetch_tag("A")
+    assert frame["value"].to_list() == [0.0, 1.0, 2.0, 3.0, 4.0]
+    assert store.con.execute("SELECT DISTINCT source_file FROM samples").fetchall() == [
+        ("/x/one.parquet",)]
+
+
+def test_insert_refuses_a_row_without_a_file(store):
+    t0 = dt.datetime(2024, 1, 1, tzinfo=dt.timezone.utc)
+    with pytest.raises(Exception, match="(?i)not null|constraint"):
+        store.insert_new_samples(_frame([("A", t0, 1.0, None, None, 2)]))

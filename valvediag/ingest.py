@@ -77,11 +77,14 @@ References
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import glob
 import hashlib
 import logging
 import os
+import queue
+import threading
 import zoneinfo
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -818,6 +821,37 @@ class _Deduped:
     later: pl.DataFrame  # rows after the first of their (tag, ts): samples + reason
 
 
+def _sorted_runs(good: pl.DataFrame) -> pl.DataFrame | None:
+    """``good`` sorted by (tag, ts) when that needs no duplicate search; else None.
+
+    The usual export lists each tag in one block of rows (blocks in any tag
+    order) with time strictly increasing within the block. Then there is no
+    (tag, ts) twice and no time running backwards, and putting the blocks in
+    tag order is the stable sort :func:`_sort_and_dedupe` would do. Checking
+    this costs one pass over the rows; the general sort and duplicate search
+    cost several.
+    """
+    if good.is_empty():
+        return good
+    if good["tag"].null_count() or good["ts"].null_count():
+        return None
+    tag, ts = pl.col("tag"), pl.col("ts")
+    new = (tag != tag.shift()).fill_null(True)
+    flags = good.select(new=new, ok=new | (ts > ts.shift()))
+    if not flags["ok"].all():
+        return None
+    starts = flags["new"].arg_true()
+    tags = good["tag"].gather(starts)
+    if tags.n_unique() != len(tags):  # a tag in two blocks: the general path
+        return None
+    if len(tags) == 1 or tags.is_sorted():
+        return good
+    ends = starts.extend_constant(good.height, 1).slice(1)
+    runs = pl.DataFrame({"tag": tags, "start": starts, "end": ends}).sort("tag")
+    return pl.concat([good.slice(a, b - a) for a, b in runs.select("start", "end").iter_rows()],
+                     rechunk=True)
+
+
 def _sort_and_dedupe(good: pl.DataFrame) -> _Deduped:
     """Sort samples by (tag, ts); drop exact duplicates; set aside conflicting ones.
 
@@ -829,6 +863,10 @@ def _sort_and_dedupe(good: pl.DataFrame) -> _Deduped:
     later rows are also returned (``later``: the sample columns and ``reason``,
     null for an exact duplicate).
     """
+    runs = _sorted_runs(good)
+    if runs is not None:  # the usual export: nothing to drop or set aside
+        return _Deduped(runs, 0, pl.DataFrame(schema={"line": pl.Int64, "reason": pl.String}),
+                        0, None, good.clear().with_columns(reason=pl.lit(None, pl.String)))
     tags = good["tag"].drop_nulls().unique().sort()
     g = good.with_columns(pl.col("tag").cast(pl.Enum(tags)))  # cheap, ordered sort key
     back = g.select((pl.col("ts").diff().over("tag") < pl.duration(microseconds=0))
@@ -1182,6 +1220,68 @@ def _one_line(exc: BaseException | str, path: str) -> str:
     return text if path in text else f"{path}: {text}"
 
 
+def _prefetched(items: Iterator, poll_s: float = 0.1) -> Iterator:
+    """Yield the items of ``items``, produced one ahead in a background thread.
+
+    Parameters
+    ----------
+    items : iterator
+        Run in a worker thread; at most one item waits beyond the one the
+        caller holds (memory: one slice more).
+    poll_s : float, default 0.1
+        How often a blocked worker looks whether the caller stopped [s].
+
+    Notes
+    -----
+    An exception of ``items`` (any ``BaseException``: a Rust panic, an
+    :class:`ExportError`) is raised in the caller, at the position it
+    occurred, with its traceback. When the caller stops early (an error while
+    writing, an interrupt, ``close()``), the worker is told to stop, ``items``
+    is closed in the worker and the thread is joined before this returns.
+    """
+    box: queue.Queue = queue.Queue(maxsize=1)
+    stop = threading.Event()
+
+    def put(entry) -> bool:
+        while not stop.is_set():
+            try:
+                box.put(entry, timeout=poll_s)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def work() -> None:
+        try:
+            for item in items:
+                if not put((True, item)):
+                    break
+            else:
+                put((False, None))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller, raised there
+            put((False, exc))
+        finally:
+            close = getattr(items, "close", None)
+            if close is not None:
+                close()
+
+    worker = threading.Thread(target=work, name="valvediag-ingest-parse", daemon=True)
+    worker.start()
+    try:
+        while True:
+            more, entry = box.get()
+            if not more:
+                if entry is not None:
+                    raise entry
+                return
+            yield entry
+    finally:
+        stop.set()
+        with contextlib.suppress(queue.Empty):
+            box.get_nowait()  # unblock a worker waiting to put
+        worker.join()
+
+
 def _ingest_one(store, path: str, timezone: str | None, force: bool, chunk_rows: int | None
                 ) -> FileIngest:
     if not os.path.isfile(path):
@@ -1192,7 +1292,8 @@ def _ingest_one(store, path: str, timezone: str | None, force: bool, chunk_rows:
                           notes=(f"{path}: already ingested (same SHA-256); skipped",))
     read = inserted = duplicates = quarantined = 0
     notes: list[str] = []
-    for parsed in iter_export(path, timezone=timezone, chunk_rows=chunk_rows):
+    # the next slice is parsed (polars) while this one is written (DuckDB): both release the GIL
+    for parsed in _prefetched(iter_export(path, timezone=timezone, chunk_rows=chunk_rows)):
         # one transaction per slice: DuckDB keeps uncommitted rows in memory
         with store.transaction():
             ins, dup, qua = _write_parsed(store, parsed)
@@ -1224,7 +1325,9 @@ def _write_parsed(store, parsed: ParsedExport) -> tuple[int, int, int]:
     rows = parsed.samples
     if later is not None and later.height:
         rows = pl.concat([rows, later.select(list(SAMPLE_SCHEMA))])
-    clash = store.conflicting_samples(rows)
+    # one look at the stored keys for both steps (it scans `samples`, the costly part)
+    overlap = store.may_overlap(rows)
+    clash = store.conflicting_samples(rows, may_overlap=overlap)
     quarantine, redone_conflicts = parsed.quarantine, 0
     if later is not None and later.height and clash.height:
         # keys stored before this slice with another value: drop the slice's own verdicts
@@ -1246,7 +1349,7 @@ def _write_parsed(store, parsed: ParsedExport) -> tuple[int, int, int]:
     clash_q = clash_q.join(parsed.raw_for(clash_q["line"]), on="line", how="left").select(
         source_file=pl.lit(parsed.path), line="line", raw="raw", reason="reason")
     # conflicting keys are stored already, so the insert skips them too
-    inserted = store.insert_new_samples(parsed.samples)
+    inserted = store.insert_new_samples(parsed.samples, may_overlap=overlap)
     quarantine = pl.concat([quarantine, clash_q.cast(QUARANTINE_SCHEMA)])
     store.insert_quarantine(quarantine)
     # every row of `rows` is inserted, a duplicate or a conflict; a re-judged later row

@@ -83,6 +83,16 @@ def _key_bounds(samples: pl.DataFrame) -> dict:
             "tags": samples["tag"].unique().sort().to_list()}
 
 
+def _sorted_by_key(samples: pl.DataFrame) -> bool:
+    """True when ``samples`` is sorted by (tag, ts) (ties allowed)."""
+    if samples.height < 2:
+        return True
+    tag, ts = pl.col("tag"), pl.col("ts")
+    prev_tag, prev_ts = tag.shift(), ts.shift()
+    ok = (tag > prev_tag) | ((tag == prev_tag) & (ts >= prev_ts))
+    return bool(samples.select(ok.slice(1).all()).item())
+
+
 class StoreLockedError(RuntimeError):
     """The database file is held by another process."""
 
@@ -270,8 +280,18 @@ class Store:
         """
         return bool(self.query("ingested_file_known", sha256=sha256)["known"][0])
 
-    def conflicting_samples(self, samples: pl.DataFrame) -> pl.DataFrame:
+    def conflicting_samples(self, samples: pl.DataFrame, *, may_overlap: bool | None = None
+                            ) -> pl.DataFrame:
         """Incoming samples whose (tag, ts) is stored with a different value or status.
+
+        Parameters
+        ----------
+        samples : polars.DataFrame
+            :data:`~valvediag.ingest.SAMPLE_SCHEMA` rows.
+        may_overlap : bool, optional
+            The result of :meth:`may_overlap` for these samples, when the
+            caller has it already (it is the costly part of the check);
+            None computes it.
 
         Returns
         -------
@@ -282,31 +302,88 @@ class Store:
                                      "stored_file": pl.String, "stored_line": pl.Int64})
         if samples.is_empty():
             return empty
+        if may_overlap is None:
+            may_overlap = self.may_overlap(samples)
+        if not may_overlap:
+            return empty
         with self._registered("incoming_samples", samples):
-            if not self._may_overlap(samples):
-                return empty
             return self.query("samples_conflicting", **_key_bounds(samples))
 
-    def _may_overlap(self, samples: pl.DataFrame) -> bool:
+    def may_overlap(self, samples: pl.DataFrame) -> bool:
         """Whether a stored sample of an incoming tag lies in that tag's incoming time range.
 
-        When False no incoming key can be stored, so the anti-join (a hash
-        join whose cost grows with the whole table) is skipped.
+        Parameters
+        ----------
+        samples : polars.DataFrame
+            Incoming rows with at least ``tag`` and ``ts``.
+
+        Returns
+        -------
+        bool
+            False when no incoming (tag, ts) can be stored yet; then the
+            anti-join (a hash join whose cost grows with the whole table) is
+            skipped. True is conservative (a key *may* be stored).
+
+        Notes
+        -----
+        Within one transaction the answer holds until samples of these tags
+        are inserted, so :func:`~valvediag.ingest.ingest_exports` computes it
+        once per slice and passes it to :meth:`conflicting_samples` and
+        :meth:`insert_new_samples`.
         """
+        if samples.is_empty():
+            return False
         bounds = samples.group_by("tag").agg(pl.col("ts").min().alias("ts_min"),
                                              pl.col("ts").max().alias("ts_max"))
         with self._registered("incoming_bounds", bounds):
             return bool(self.con.execute(load_sql("samples_may_overlap"),
                                          {"tags": bounds["tag"].to_list()}).fetchall()[0][0])
 
-    def insert_new_samples(self, samples: pl.DataFrame) -> int:
-        """Insert samples whose (tag, ts) is not stored yet; return how many [rows]."""
+    _may_overlap = may_overlap  # the former private name
+
+    def insert_new_samples(self, samples: pl.DataFrame, *, may_overlap: bool | None = None
+                           ) -> int:
+        """Insert samples whose (tag, ts) is not stored yet; return how many [rows].
+
+        Parameters
+        ----------
+        samples : polars.DataFrame
+            :data:`~valvediag.ingest.SAMPLE_SCHEMA` rows, unique per (tag, ts).
+        may_overlap : bool, optional
+            See :meth:`conflicting_samples`; None computes it.
+
+        Notes
+        -----
+        Rows are inserted sorted by (tag, ts), so the zone maps of the
+        ``samples`` row groups prune the per-tag window reads. A frame that is
+        sorted already (as every parsed export is) is inserted as it is: a
+        sort inside DuckDB cost ~2.5x the insert itself (7.5 M rows: 6.4 s vs
+        2.4 s CPU). The source file is bound as a parameter, not moved as a
+        column of the same text on every row (a frame of several files is
+        inserted file by file).
+        """
         if samples.is_empty():
             return 0
-        with self._registered("incoming_samples", samples):
-            if not self._may_overlap(samples):
-                return int(self._run("samples_insert_all") or 0)
-            return int(self._run("samples_insert_new", **_key_bounds(samples)) or 0)
+        if may_overlap is None:
+            may_overlap = self.may_overlap(samples)
+        if not _sorted_by_key(samples):
+            samples = samples.sort("tag", "ts", maintain_order=True)
+        files = samples["source_file"]
+        if files.null_count() == 0 and (files == files[0]).all():
+            parts = [(files[0], samples)]
+        else:  # several files (or nulls, which the NOT NULL column refuses)
+            parts = [(None, samples)] if files.null_count() else [
+                (p["source_file"][0], p)
+                for p in samples.partition_by("source_file", maintain_order=True)]
+        inserted = 0
+        for source_file, part in parts:
+            if source_file is not None:
+                part = part.with_columns(source_file=pl.lit(None))  # Null type: no data
+            name, params = ("samples_insert_new", _key_bounds(part)) if may_overlap else (
+                "samples_insert_all", {})
+            with self._registered("incoming_samples", part):
+                inserted += int(self._run(name, source_file=source_file, **params) or 0)
+        return inserted
 
     def insert_quarantine(self, rows: pl.DataFrame) -> int:
         """Add quarantine rows (``source_file, line, raw, reason``); return new rows."""
