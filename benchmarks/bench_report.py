@@ -12,6 +12,10 @@ Timed: :func:`valvediag.outputs.write_outputs` (history query, work orders,
 ``verdicts.json`` and the HTML report with its figures). Printed: seconds,
 report size [MB], figures, workers, ``os.cpu_count()``.
 
+Measured on 2 shared cores: 87.7 s and 22.8 MB with the matplotlib figures
+(2 figure workers), 5.8 s and 18.0 MB with the figures written as SVG
+directly (:mod:`valvediag.report.plot`, one process).
+
 Usage::
 
     python benchmarks/bench_report.py [--loops 5000] [--flagged 200] [--workers N]

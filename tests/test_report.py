@@ -196,3 +196,34 @@ def test_report_with_figures_renders_each_fault_once(loops):
     assert text.count('<figure><svg role="img"') == 2        # stiction and linear
     assert text.count('class="spark"') == 3                  # every loop in the table
     assert 'id="loop-TIC3"' in text
+
+
+def test_report_of_worker_processes_is_the_same_bytes(loops):
+    info = {"generated": T0}         # else "now" is the run's start: it would differ
+    serial = render_report(loops, run_id="r", run_info=info, workers=1)
+    assert render_report(loops, run_id="r", run_info=info, workers=2) == serial
+    assert render_report(loops, run_id="r", run_info=info, workers=1) == serial
+
+
+def test_figure_panels_scales_and_gaps(loops):
+    from valvediag.report.plot import HEIGHT, WIDTH, _polyline
+
+    s = loop_figure(loops[0], "g")
+    root = ET.fromstring(s)
+    assert root.get("viewBox") == f"0 0 {round(WIDTH * 10)} {round(HEIGHT * 10)}"
+    assert s.count("<clipPath") == 5                     # one per panel
+    # every coordinate is an integer number of tenths of a pixel
+    assert not re.search(r'\bd="[^"]*\d\.\d', s)
+    # NaN breaks a line: two sub-paths; a lone point between gaps draws nothing
+    d = _polyline(np.array([0.0, 1, 2, 3, 4, 5, 6]), np.array([0, 1, np.nan, 2, np.nan, 3, 4.0]))
+    assert d == "M0 0l10 10M50 30l10 10"
+    # the ticks of the OP panel are clock times, as matplotlib's date locator picks them
+    assert re.search(r">\d\d:\d\d</text>", s)
+
+
+def test_matplotlib_figure_is_still_drawn(loops):
+    from valvediag.report.figures import loop_figure_mpl
+
+    s = loop_figure_mpl(loops[0], "m")
+    assert s.startswith('<svg role="img"') and "Backlash Index of every half cycle" in s
+    ET.fromstring(s)

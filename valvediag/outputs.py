@@ -88,8 +88,8 @@ def write_verdicts_json(results: Sequence[LoopResult], path, *, run_id: str) -> 
     pathlib.Path
     """
     loops = []
-    for r in results:
-        d = r.to_json()
+    for r in results:      # only the keys written: to_json() would clean the evidence too
+        d = _clean({k: getattr(r, k, None) for k in VERDICT_KEYS})
         loops.append({k: _sig(d.get(k)) for k in VERDICT_KEYS})
     path = Path(path)
     path.write_text(json.dumps({"run_id": run_id, "loops": _clean(loops)}, indent=1,

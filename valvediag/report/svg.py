@@ -26,7 +26,11 @@ VERDICT_COLOURS = {
 
 
 def _f(x: float) -> str:
-    v = round(float(x), 1)
+    return _g(round(float(x), 1))
+
+
+def _g(v: float) -> str:
+    """A number already rounded to 0.1, as short text."""
     return "0" if v == 0 else f"{v:g}"
 
 
@@ -64,10 +68,13 @@ def sparkline_svg(values, *, width: float = 96.0, height: float = 18.0,
     xs = np.linspace(0.5, width - 0.5, y.size)
     ys = (height - pad - (y - lo) / span * (height - 2 * pad)) if span > 0 else \
         np.full(y.size, height / 2)
+    # _f on whole arrays: round once in numpy, format the Python floats
+    fx = [_g(v) for v in np.round(xs, 1).tolist()]
+    fy = [_g(v) for v in np.round(ys, 1).tolist()]
     lines, run = [], []
-    for k in range(y.size):
-        if ok[k]:
-            run.append(f"{_f(xs[k])},{_f(ys[k])}")
+    for k, good in enumerate(ok.tolist()):
+        if good:
+            run.append(f"{fx[k]},{fy[k]}")
         elif run:
             lines.append(run)
             run = []
