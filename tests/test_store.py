@@ -276,3 +276,39 @@ def test_insert_refuses_a_row_without_a_file(store):
     t0 = dt.datetime(2024, 1, 1, tzinfo=dt.timezone.utc)
     with pytest.raises(Exception, match="(?i)not null|constraint"):
         store.insert_new_samples(_frame([("A", t0, 1.0, None, None, 2)]))
+
+
+def test_sample_bounds_follow_inserts_and_are_rebuilt_for_an_older_store(tmp_path):
+    """sample_bounds (per-tag stored time range) decides most overlap checks without reading
+    samples; a store made before it existed gets it filled on open."""
+    t0 = dt.datetime(2024, 1, 1, tzinfo=dt.timezone.utc)
+    sec = lambda s: t0 + dt.timedelta(seconds=s)  # noqa: E731
+    db = tmp_path / "b.duckdb"
+    with Store(db) as store:
+        store.insert_new_samples(_frame([("A", sec(s), 1.0, None, "f", s) for s in (0, 10)]))
+        store.insert_new_samples(_frame([("A", sec(20), 1.0, None, "g", 2),
+                                         ("B", sec(5), 1.0, None, "g", 3)]))
+        bounds = store.con.execute("SELECT tag, ts_min, ts_max FROM sample_bounds "
+                                   "ORDER BY tag").fetchall()
+        assert bounds == [("A", sec(0), sec(20)), ("B", sec(5), sec(5))]
+        # inside the stored range but on no stored sample: the exact check still says no
+        assert not store.may_overlap(_frame([("A", sec(5), 2.0, None, "h", 2)]))
+        assert store.may_overlap(_frame([("A", sec(10), 2.0, None, "h", 2)]))
+        assert not store.may_overlap(_frame([("A", sec(21), 2.0, None, "h", 2)]))
+        assert not store.may_overlap(_frame([("C", sec(10), 2.0, None, "h", 2)]))
+        store.con.execute("DROP TABLE sample_bounds")  # as a store made before it existed
+    with Store(db) as store:
+        assert store.con.execute("SELECT tag, ts_min, ts_max FROM sample_bounds "
+                                 "ORDER BY tag").fetchall() == bounds
+        assert store.may_overlap(_frame([("B", sec(5), 2.0, None, "h", 2)]))
+        assert store.insert_new_samples(_frame([("B", sec(5), 2.0, None, "h", 2)])) == 0
+
+
+def test_a_failed_insert_leaves_sample_bounds_as_they_were(tmp_path):
+    t0 = dt.datetime(2024, 1, 1, tzinfo=dt.timezone.utc)
+    with Store(tmp_path / "r.duckdb") as store:
+        with pytest.raises(Exception), store.transaction():
+            store.insert_new_samples(_frame([("A", t0, 1.0, None, "f", 2)]))
+            raise RuntimeError("rolled back")
+        assert store.con.execute("SELECT count(*) FROM sample_bounds").fetchall() == [(0,)]
+        assert store.counts()["samples"] == 0

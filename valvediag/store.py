@@ -83,6 +83,12 @@ def _key_bounds(samples: pl.DataFrame) -> dict:
             "tags": samples["tag"].unique().sort().to_list()}
 
 
+def _tag_bounds(samples: pl.DataFrame) -> pl.DataFrame:
+    """``tag, ts_min, ts_max`` of incoming samples."""
+    return samples.group_by("tag").agg(pl.col("ts").min().alias("ts_min"),
+                                       pl.col("ts").max().alias("ts_max"))
+
+
 def _sorted_by_key(samples: pl.DataFrame) -> bool:
     """True when ``samples`` is sorted by (tag, ts) (ties allowed)."""
     if samples.height < 2:
@@ -209,7 +215,12 @@ class Store:
         self.con.execute("SET TimeZone = 'UTC'")
         self.con.execute(f"SET memory_limit = '{MEMORY_LIMIT[1 if read_only else 0]}'")
         if not read_only:
+            missing = self.con.execute(load_sql("samples_bounds_missing")).fetchall()
+            fill_bounds = bool(missing[0][0])
             self.con.execute(load_sql("schema"))
+            if fill_bounds:  # new store, or one made before sample_bounds existed
+                with self.transaction():
+                    self.con.execute(load_sql("samples_bounds_rebuild"))
             if not self.con.execute(load_sql("runs_has_owner")).fetchall()[0][0]:
                 with self.transaction():       # a store older than runs.owner/note
                     self.con.execute(load_sql("runs_migrate"))
@@ -333,9 +344,11 @@ class Store:
         """
         if samples.is_empty():
             return False
-        bounds = samples.group_by("tag").agg(pl.col("ts").min().alias("ts_min"),
-                                             pl.col("ts").max().alias("ts_max"))
+        bounds = _tag_bounds(samples)
         with self._registered("incoming_bounds", bounds):
+            # the per-tag stored ranges first (a table of one row per tag): usually settles it
+            if not self.con.execute(load_sql("samples_bounds_overlap")).fetchall()[0][0]:
+                return False
             return bool(self.con.execute(load_sql("samples_may_overlap"),
                                          {"tags": bounds["tag"].to_list()}).fetchall()[0][0])
 
@@ -383,6 +396,8 @@ class Store:
                 "samples_insert_all", {})
             with self._registered("incoming_samples", part):
                 inserted += int(self._run(name, source_file=source_file, **params) or 0)
+        with self._registered("incoming_bounds", _tag_bounds(samples)):
+            self._run("samples_bounds_update")  # keep sample_bounds a superset
         return inserted
 
     def insert_quarantine(self, rows: pl.DataFrame) -> int:
