@@ -94,7 +94,7 @@ def _angle(slope, unit):
     return np.degrees(np.arctan(abs(slope) / unit))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _mid_crossings(y, ai):
     """Index nearest to the mid-level between consecutive apices."""
     m = max(ai.size - 1, 0)
@@ -114,7 +114,7 @@ def _mid_crossings(y, ai):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _paper_core(x, period_hint):
     """Literal BI. Returns (bi, period, a_pp, apex_idx, apex_sign, theta_peak,
     mid_idx, theta_mid)."""
@@ -148,7 +148,7 @@ def _paper_core(x, period_hint):
     return bi, P, app, ai, asg, thp, mid, thm
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _solve3(a00, a01, a02, a11, a12, a22, r0, r1, r2):
     """Solve a symmetric 3x3 system (Cholesky); NaN when singular."""
     if a00 <= 0:
@@ -174,7 +174,7 @@ def _solve3(a00, a01, a02, a11, a12, a22, r0, r1, r2):
     return b0, b1, b2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _solve_spd(A, r):
     """Solve a small symmetric positive-definite system in place (Cholesky).
     Returns False when it is (numerically) singular."""
@@ -209,7 +209,7 @@ def _hyp(tau, w):
     return -(np.sqrt(tau * tau + w * w) - w)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _fit_one(y, k, s, qb, qa, sh, w, A, r, tail):
     """Least squares of the apex model to ``s * y[k-qb : k+qa+1]``::
 
@@ -222,6 +222,14 @@ def _fit_one(y, k, s, qb, qa, sh, w, A, r, tail):
     (4,) are work arrays; ``r`` returns (y0, m, b, c). Without ``tail`` the
     last term is left out (c = 0). Returns the residual sum of squares, inf
     when singular."""
+    szz = _apex_sums(y, k, s, qb, qa, sh, w, A, r)
+    return _apex_solve(A, r, szz, tail)
+
+
+@numba.njit(cache=True, nogil=True)
+def _apex_sums(y, k, s, qb, qa, sh, w, A, r):
+    """Normal equations of :func:`_fit_one` into ``A`` (lower triangle) and
+    ``r``; returns the sum of squares of the data."""
     for i in range(4):
         r[i] = 0.0
         for j in range(4):
@@ -249,6 +257,13 @@ def _fit_one(y, k, s, qb, qa, sh, w, A, r, tail):
         r[2] += f2 * z
         r[3] += f3 * z
         szz += z * z
+    return szz
+
+
+@numba.njit(cache=True, nogil=True)
+def _apex_solve(A, r, szz, tail):
+    """Solve the normal equations of :func:`_apex_sums` (in place); see
+    :func:`_fit_one`."""
     rz0, rz1, rz2, rz3 = r[0], r[1], r[2], r[3]
     a00, a10, a11, a20, a21, a22 = A[0, 0], A[1, 0], A[1, 1], A[2, 0], A[2, 1], A[2, 2]
     if tail and _solve_spd(A, r) and r[3] <= 0.0:
@@ -261,7 +276,7 @@ def _fit_one(y, k, s, qb, qa, sh, w, A, r, tail):
     return szz - (b0 * rz0 + b1 * rz1 + b2 * rz2)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _fit_apices(y, ai, asg, qbs, qas, wgrid, reach, tail):
     """Fit the apex model around every apex for every rounding width, over
     ``qbs[a]`` samples before and ``qas[a]`` after the centre of apex ``a``.
@@ -270,7 +285,8 @@ def _fit_apices(y, ai, asg, qbs, qas, wgrid, reach, tail):
     over ``+-reach`` samples, refined by successive halving to 1/64 sample.
 
     Returns rss (A, W) and params (A, W, 5) = (shift, y0, m, b, c), time in
-    samples relative to the apex centre."""
+    samples relative to the apex centre. :func:`_fit_apices_both` gives the
+    same for both models at once."""
     nA = ai.size
     nW = wgrid.size
     rss = np.full((nA, nW), np.inf)
@@ -310,7 +326,74 @@ def _fit_apices(y, ai, asg, qbs, qas, wgrid, reach, tail):
     return rss, par
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
+def _fit_apices_both(y, ai, asg, qbs, qas, wgrid, reach):
+    """:func:`_fit_apices` without and with the tail term, index 0 and 1 of
+    the returned rss (2, A, W) and params (2, A, W, 5).
+
+    The results equal two calls of :func:`_fit_apices` bit for bit; the
+    normal equations of the half-sample grid of corner positions, which do
+    not depend on the model, are summed once for both, and the best fit's
+    parameters are kept rather than fitted again (a third fewer passes over
+    the data)."""
+    nA = ai.size
+    nW = wgrid.size
+    rss = np.full((2, nA, nW), np.inf)
+    par = np.full((2, nA, nW, 5), np.nan)
+    A0 = np.empty((4, 4))
+    r0 = np.empty(4)
+    A = np.empty((4, 4))
+    r = np.empty(4)
+    rb = np.empty((2, 4))
+    best = np.empty(2)
+    bsh = np.empty(2)
+    ngrid = int(round(4 * reach)) + 1
+    for a in range(nA):
+        k = ai[a]
+        s = asg[a]
+        qb = qbs[a]
+        qa = qas[a]
+        for wi in range(nW):
+            w = wgrid[wi]
+            best[0] = np.inf
+            best[1] = np.inf
+            bsh[0] = 0.0
+            bsh[1] = 0.0
+            for si in range(ngrid):
+                sh = -reach + 0.5 * si
+                szz = _apex_sums(y, k, s, qb, qa, sh, w, A0, r0)
+                for t in range(2):
+                    A[:, :] = A0
+                    r[:] = r0
+                    v = _apex_solve(A, r, szz, t == 1)
+                    if v < best[t]:
+                        best[t] = v
+                        bsh[t] = sh
+                        rb[t, :] = r
+            for t in range(2):
+                tail = t == 1
+                step = 0.25
+                for _ in range(5):
+                    centre = bsh[t]
+                    for sh in (centre - step, centre + step):
+                        v = _fit_one(y, k, s, qb, qa, sh, w, A, r, tail)
+                        if v < best[t]:
+                            best[t] = v
+                            bsh[t] = sh
+                            rb[t, :] = r
+                    step *= 0.5
+                if not best[t] < np.inf:
+                    # no finite fit: what the final fit leaves, as _fit_apices
+                    best[t] = _fit_one(y, k, s, qb, qa, bsh[t], w, A, r, tail)
+                    rb[t, :] = r
+                rss[t, a, wi] = best[t]
+                par[t, a, wi, 0] = bsh[t]
+                for i in range(4):
+                    par[t, a, wi, 1 + i] = rb[t, i]
+    return rss, par
+
+
+@numba.njit(cache=True, nogil=True)
 def _smoothed_apices(y, ai, asg, L):
     """Move every apex to the extreme of a centred moving average of width
     ``L`` within +-L samples: the raw extreme sample carries a positive noise
@@ -344,7 +427,7 @@ def _apex_model(tau, y0, m, b, c, w):
     return v
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _model_apex(y0, m, b, c, w, lo, hi):
     """Position [samples] of the fitted model's maximum on [lo, hi], found on
     a 1/20-sample grid; NaN when the maximum sits on the border (the fitted
@@ -363,7 +446,7 @@ def _model_apex(y0, m, b, c, w, lo, hi):
     return best
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _robust_core(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
     """Robust BI. ``w_grid`` holds the rounding widths searched [fraction of
     the period]. Returns (bi, period, a_pp, w_rel, apex_idx, apex_sign,
@@ -441,8 +524,10 @@ def _robust_core(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
     best_bic = np.inf
     wbest = 0
     par = np.empty((0, 0, 0))
+    rss_b, par_b = _fit_apices_both(yd, ai, asg, qbs, qas, wgrid, reach)
     for tail in (False, True):
-        rss_t, par_t = _fit_apices(yd, ai, asg, qbs, qas, wgrid, reach, tail)
+        rss_t = rss_b[1 if tail else 0]
+        par_t = par_b[1 if tail else 0]
         tot = np.zeros(wgrid.size)
         for wi in range(wgrid.size):
             for a in range(ai.size):

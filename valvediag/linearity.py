@@ -37,6 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .oscillation import resample_cycles
+
 __all__ = ["CycleShape", "mean_cycles", "cycle_shape"]
 
 NBINS = 64
@@ -60,17 +62,7 @@ def mean_cycles(signals, apex_idx, apex_sign, nbins: int = NBINS):
     list of numpy.ndarray, shape (n_cycles, nbins)
         One matrix per signal; empty when fewer than two cycles.
     """
-    apex_idx = np.asarray(apex_idx)
-    vl = apex_idx[np.asarray(apex_sign) < 0]
-    phase = np.linspace(0.0, 1.0, nbins, endpoint=False)
-    out = [[] for _ in signals]
-    for a, b in zip(vl[:-1], vl[1:]):
-        if b - a < 3:
-            continue
-        tt = (np.arange(a, b + 1) - a) / (b - a)
-        for k, s in enumerate(signals):
-            out[k].append(np.interp(phase, tt, np.asarray(s)[a:b + 1]))
-    return [np.asarray(o) if len(o) else np.empty((0, nbins)) for o in out]
+    return resample_cycles(signals, apex_idx, apex_sign, nbins)
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ __all__ = ["Oscillation", "detect_oscillation", "acf_period", "acf_regularity"]
 BAND_FRACTION = 0.2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _linear_detrend(x):
     n = x.size
     tm = 0.5 * (n - 1)
@@ -48,7 +48,7 @@ def _linear_detrend(x):
     return y
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _baseline(x, L):
     """Centred moving average over ``L`` samples, extrapolated linearly at the
     ends (a moving average over exactly one period removes the oscillation and
@@ -80,7 +80,7 @@ def _baseline(x, L):
     return b
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _half_range(y):
     """Half of the 3-97 % quantile range: a noise-robust amplitude.
 
@@ -97,7 +97,7 @@ def _half_range(y):
     return 0.5 * (hi - lo)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _runs(y, band):
     """Start index and sign of each run beyond the hysteresis band."""
     n = y.size
@@ -119,7 +119,7 @@ def _runs(y, band):
     return starts[:m], signs[:m]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _apices(y, starts, signs):
     """Index of the extreme of every complete run (between two run starts).
 
@@ -146,7 +146,7 @@ def _apices(y, starts, signs):
     return idx[:k], sg[:k]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _cycle_durations(starts, signs):
     """Full-cycle durations between like band crossings [samples]."""
     m = starts.size
@@ -159,7 +159,7 @@ def _cycle_durations(starts, signs):
     return out[:k]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def segment_cycles(x, period_hint, remove_drift):
     """Split a record into half-cycles.
 
@@ -366,22 +366,78 @@ class Oscillation:
         return ax
 
 
+def resample_cycles(signals, apex_idx, apex_sign, nbins: int):
+    """Resample every valley-to-valley cycle to ``nbins`` phase points.
+
+    Parameters
+    ----------
+    signals : sequence of array_like
+        Signals sampled like the record whose apices are given [any unit].
+    apex_idx, apex_sign : array_like
+        Apex sample indices and +1 (peak) / -1 (valley).
+    nbins : int
+        Phase points per cycle, at phases ``k / nbins``, ``k = 0 .. nbins-1``.
+
+    Returns
+    -------
+    list of numpy.ndarray, shape (n_cycles, nbins)
+        One matrix per signal; a cycle shorter than 3 samples is skipped.
+
+    Notes
+    -----
+    Row ``i`` equals ``np.interp(phase, (j - a) / (b - a), s[a:b + 1])`` for
+    cycle ``[a, b]``, bit for bit: the same bracketing sample, slope and
+    formula as NumPy's ``interp``, in one compiled pass instead of one call
+    per cycle. The signals must be finite on the cycles (no NaN fallback).
+    """
+    apex_idx = np.asarray(apex_idx)
+    vl = apex_idx[np.asarray(apex_sign) < 0].astype(np.int64)
+    a, b = vl[:-1], vl[1:]
+    keep = b - a >= 3
+    a, m = a[keep], (b - a)[keep]
+    if a.size == 0:
+        return [np.empty((0, nbins)) for _ in signals]
+    phase = np.linspace(0.0, 1.0, nbins, endpoint=False)
+    return [_resample_kernel(np.ascontiguousarray(s, dtype=float), a, m, phase)
+            for s in signals]
+
+
+@numba.njit(cache=True, nogil=True)
+def _resample_kernel(s, a, m, phase):
+    """``out[i, q] = np.interp(phase[q], (j - a_i) / m_i, s[a_i : a_i + m_i + 1])``."""
+    out = np.empty((a.size, phase.size))
+    for i in range(a.size):
+        k = a[i]
+        mi = m[i]
+        mf = float(mi)
+        for q in range(phase.size):
+            x = phase[q]
+            # the bracketing sample as NumPy's binary search finds it:
+            # j/m <= x < (j+1)/m
+            j = min(int(x * mf), mi - 1)
+            if j / mf > x:
+                j -= 1
+            elif (j + 1) / mf <= x:
+                j += 1
+            xj = j / mf
+            fj = s[k + j]
+            if xj == x:
+                out[i, q] = fj
+            else:
+                slope = (s[k + j + 1] - fj) / ((j + 1) / mf - xj)
+                out[i, q] = slope * (x - xj) + fj
+    return out
+
+
 def _periodic_fraction(y, apex_idx, apex_sign, nbins=32):
     """Variance share of the mean cycle (cycles from valley to valley, each
     resampled to ``nbins`` phase points)."""
     vl = apex_idx[apex_sign < 0]
     if vl.size < 3:
         return 0.0
-    phase = np.linspace(0, 1, nbins, endpoint=False)
-    cyc = []
-    for a, b in zip(vl[:-1], vl[1:]):
-        if b - a < 3:
-            continue
-        tt = (np.arange(a, b + 1) - a) / (b - a)
-        cyc.append(np.interp(phase, tt, y[a:b + 1]))
-    if len(cyc) < 2:
+    C = resample_cycles([y], apex_idx, apex_sign, nbins)[0]
+    if C.shape[0] < 2:
         return 0.0
-    C = np.asarray(cyc)
     mean = C.mean(axis=0)
     tot = C.var() * C.size
     res = ((C - mean) ** 2).sum()

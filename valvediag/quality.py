@@ -167,7 +167,10 @@ def _pct(part: float, whole: float) -> float:
 
 
 def _ts_seconds(frame: pl.DataFrame) -> np.ndarray:
-    return np.sort(to_epoch_us(frame["ts"].drop_nulls())) / 1e6
+    us = to_epoch_us(frame["ts"].drop_nulls())
+    if us.size > 1 and not (us[1:] >= us[:-1]).all():   # the store's are sorted: skip the sort
+        us = np.sort(us)
+    return us / 1e6
 
 
 def _gaps(frame: pl.DataFrame, aligned: AlignedLoop, role: str) -> list[float]:
@@ -262,11 +265,18 @@ def _manual(aligned: AlignedLoop) -> tuple[float | None, str | None]:
 
 def _pv_raw_stats(pv: pl.DataFrame) -> tuple[float, float, float, float | None]:
     """(median spacing [s], spacing spread, repeat fraction, resolution) of raw PV."""
-    t = np.unique(_ts_seconds(pv))
+    t = _ts_seconds(pv)
     d = np.diff(t)
+    if d.size and not (d > 0).all():   # repeated stamps: distinct ones only
+        d = np.diff(np.unique(t))
     med = float(np.median(d)) if d.size else float("nan")
     spread = float(np.percentile(d, 90) / np.percentile(d, 10)) if d.size >= 10 else 1.0
-    v = pv.sort("ts")["value"].drop_nulls().to_numpy()
+    ts = pv["ts"]
+    if ts.null_count() == 0 and ts.len() > 1 and \
+            (np.diff(to_epoch_us(ts)) >= 0).all():     # sorted already (the store's)
+        v = pv["value"].drop_nulls().to_numpy()
+    else:
+        v = pv.sort("ts")["value"].drop_nulls().to_numpy()
     dv = np.abs(np.diff(v)) if v.size > 1 else np.empty(0)
     repeat = float(np.mean(dv == 0)) if dv.size else float("nan")
     nz = dv[dv > 0]

@@ -13,6 +13,7 @@ linear parameters exactly for each.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -295,6 +296,10 @@ class Problem:
         """Score candidates; rows ``[sse_train, sse_heldout, gain, coef...]``.
 
         Candidates with different plant time constants are scored per group.
+        A batch is scored on all cores (:func:`kernels.score_batch`) in the
+        main thread only; in other threads (a scan's pool of loops, which
+        already keeps the cores busy) one after the other without the GIL
+        (:func:`kernels.score_serial`). Both give the same numbers.
         """
         thetas = list(thetas)
         out = np.empty((len(thetas), 3 + self.p))
@@ -307,7 +312,7 @@ class Problem:
             st = self.setup(thetas[idx[0]])
             P = np.ascontiguousarray(np.array([self.row(thetas[i]) for i in idx]))
             o = np.empty((len(idx), 3 + self.p))
-            fn = kernels.score_batch if len(idx) >= 4 else kernels.score_serial
+            fn = kernels.score_batch if len(idx) >= 4 and _main_thread() else kernels.score_serial
             fn(self.u, self.vcode, P, d.seg_start, d.seg_end, d.seg_set, st["qv"], st["WT"],
                st["qW"], self.anchored, st["Py"], st["ystats"], st["G2"], st["Ginv"],
                st["GinvWy"], o)
@@ -342,6 +347,10 @@ class Problem:
         pv_model = np.where(used, d.pv - e, np.nan)
         return dict(theta=theta, gain=gain, lin=lin, valve=x, delayed=xd, lagged=lagged,
                     load=load, response=r, residual=e, pv_model=pv_model, Py=st["Py"])
+
+
+def _main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
 
 
 def zoh_matrices(process_type, lag, tau, h):
@@ -486,11 +495,11 @@ def _from_vector(theta: Theta, names, v, dmax) -> Theta:
         elif nm == "S":
             kw["S"] = max(float(val), 0.0)
         elif nm == "Jr":
-            kw["Jr"] = float(np.clip(val, 0.0, 1.0))
+            kw["Jr"] = min(max(float(val), 0.0), 1.0)      # np.clip, without its overhead
         elif nm == "phase":
             kw["phase"] = float(val % 1.0)
         elif nm == "delay":
-            kw["delay"] = float(np.clip(val, 0.0, dmax))
+            kw["delay"] = min(max(float(val), 0.0), dmax)
         elif nm == "loglag":
             kw["lag"] = float(math.exp(min(val, 50.0)))
         elif nm == "logtau":

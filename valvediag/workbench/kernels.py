@@ -74,7 +74,7 @@ def _chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_o
         z = z1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def simulate_chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1,
                    x_out, xd_out, z_out, r_out):
     """Run the chain on one OP record, keeping every intermediate signal.
@@ -94,7 +94,7 @@ def _chain_response(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0
            r_out, False)
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats,
                G2, Ginv, GinvWy, out, r):
     p = WT.shape[1]
@@ -187,7 +187,11 @@ def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, qW, anchored
 @numba.njit(cache=True, parallel=True)
 def score_batch(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats, G2,
                 Ginv, GinvWy, out):
-    """Score a batch of candidates in parallel (see :func:`score_serial`)."""
+    """Score a batch of candidates in parallel (see :func:`score_serial`).
+
+    It keeps the GIL (unlike the other kernels): numba's fallback threading
+    layer (workqueue) aborts on concurrent launches from several threads.
+    Threads should call :func:`score_serial`, which releases it."""
     n = u.shape[0]
     for i in numba.prange(P.shape[0]):
         r = np.empty(n)
@@ -195,7 +199,7 @@ def score_batch(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, qW, anchored, 
                    G2, Ginv, GinvWy, out, r)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def score_serial(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats, G2,
                  Ginv, GinvWy, out):
     """Score a batch of candidate chains, one after the other.
@@ -232,7 +236,7 @@ def score_serial(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, qW, anchored,
                    G2, Ginv, GinvWy, out, r)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def turning_points(u, delta):
     """Reversals of ``u`` with hysteresis ``delta``.
 
@@ -274,7 +278,7 @@ def turning_points(u, delta):
     return idx[:m], sgn[:m], conf[:m]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def nudge_holds(u, max_run, eps):
     """OP as a Kano valve should see it when held samples are not rests.
 
