@@ -551,7 +551,10 @@ def render_loop_figures(jobs, *, workers: int | None = None, zoom_cycles: float 
     file: unlike :mod:`multiprocessing` they never re-import the caller's
     ``__main__``, so a script without an ``if __name__ == "__main__"`` guard,
     a notebook or a Prefect worker is safe. Each costs about a second to
-    start. A worker that fails has its share drawn in this process.
+    start. A worker that fails has its share drawn in this process. Workers
+    run in the directory holding this package (``python -m`` puts the working
+    directory first on ``sys.path``), so they import the same ``valvediag``
+    as the caller whatever its working directory.
     """
     import os
     import pickle
@@ -581,7 +584,8 @@ def render_loop_figures(jobs, *, workers: int | None = None, zoom_cycles: float 
                 pickle.dump(chunk, fh, protocol=pickle.HIGHEST_PROTOCOL)
             try:
                 proc = subprocess.Popen([sys.executable, "-m", "valvediag.report.figures",
-                                         src, dst], env=env, stdin=subprocess.DEVNULL,
+                                         src, dst], env=env, cwd=package_root,
+                                        stdin=subprocess.DEVNULL,
                                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
             except OSError:
                 proc = None
