@@ -15,7 +15,7 @@ from scipy import signal
 
 from valvediag.registry import LoopSpec
 from valvediag.report.explain import duration_text, explain, quality_label
-from valvediag.report.figures import loop_figure, render_loop_figures, svg_text
+from valvediag.report.figures import loop_figure, render_loop_figures
 from valvediag.report.history import LoopHistory
 from valvediag.report.html import render_report
 from valvediag.report.svg import history_svg, sparkline_svg
@@ -134,16 +134,6 @@ def test_figure_text_from_the_data_is_escaped(loops):
     ET.fromstring(s)
 
 
-def test_svg_text_strips_what_varies(loops):
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(2, 1))
-    fig.add_subplot().plot([0, 1], [1, 0])
-    s = svg_text(fig, "p", title='a "title" <x>')
-    assert s.startswith('<svg role="img" aria-label="a &#34;title&#34; &lt;x&gt;"')
-    assert "Matplotlib v" not in s and "dc:date" not in s
-
-
 # ------------------------------------------------------------- sparklines and history
 
 def test_sparkline_breaks_at_gaps_and_flat_lines_show():
@@ -221,9 +211,3 @@ def test_figure_panels_scales_and_gaps(loops):
     assert re.search(r">\d\d:\d\d</text>", s)
 
 
-def test_matplotlib_figure_is_still_drawn(loops):
-    from valvediag.report.figures import loop_figure_mpl
-
-    s = loop_figure_mpl(loops[0], "m")
-    assert s.startswith('<svg role="img"') and "Backlash Index of every half cycle" in s
-    ET.fromstring(s)

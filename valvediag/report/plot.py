@@ -1,14 +1,14 @@
 """
 The evidence figure of a loop drawn straight as SVG text, without matplotlib.
 
-:func:`loop_svg` draws the same five panels as
-:func:`valvediag.report.figures.loop_figure_mpl` (trend, OP, zoom on a few
-cycles, phase plot, Backlash Index per half cycle or mean cycle) with the
-same titles, colours, line widths and layout (matplotlib's grid of the
-panels, its default 5 % margins and tick choice), but writes the SVG
-elements itself: a figure costs a few milliseconds instead of the ~0.5 s of
-matplotlib's artist, tick and text machinery, which made the figures nearly
-all of a plant report's cost (450 figures: ~4 min on 2 cores).
+:func:`loop_svg` draws the five panels of a loop's evidence (trend, OP,
+zoom on a few cycles, phase plot, Backlash Index per half cycle or mean
+cycle) as the report's matplotlib figures did, with the same titles,
+colours, line widths and layout (matplotlib's grid of the panels, its
+default 5 % margins and tick choice), but writes the SVG elements itself: a
+figure costs a few milliseconds instead of the ~0.5 s of matplotlib's
+artist, tick and text machinery, which made the figures nearly all of a
+plant report's cost (450 figures: ~4 min on 2 cores).
 
 Notes
 -----
@@ -573,9 +573,8 @@ def loop_svg(result, prefix: str, *, zoom_cycles: float = 4.0, title: str | None
 
     Notes
     -----
-    The panels and their content follow
-    :func:`valvediag.report.figures.loop_figure_mpl`; see the module notes
-    for what differs (text metrics are estimated, not measured).
+    See the module notes for what differs from a matplotlib drawing (text
+    metrics are estimated, not measured).
     """
     from .figures import _evidence_window, _highlight, _slice_backlash
 
