@@ -309,6 +309,25 @@ def _collect(futures, batches: list[range], total: int) -> list[LoopResult]:
     return [r for f in futures for r in f.result()]
 
 
+#: Environment of worker processes: one thread each for numba's parallel kernels and
+#: the BLAS/OpenMP pools, so that N workers on N cores do not start N x N threads.
+WORKER_THREAD_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+                     "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+@contextlib.contextmanager
+def _worker_env() -> Iterator[None]:
+    """:data:`WORKER_THREAD_ENV` in ``os.environ`` while worker processes start (they
+    inherit it; a variable the user set is kept)."""
+    added = {k: v for k, v in WORKER_THREAD_ENV.items() if k not in os.environ}
+    os.environ.update(added)
+    try:
+        yield
+    finally:
+        for k in added:
+            os.environ.pop(k, None)
+
+
 @contextlib.contextmanager
 def _api_for_processes() -> Iterator[None]:
     """Let worker processes report to the API this flow reports to.
@@ -341,7 +360,7 @@ def _analyse_here(db: str, jobs: list[LoopJob], config: ScanConfig,
         params = {"db": unmapped(db), "jobs": [jobs[b.start:b.stop] for b in batches],
                   "config": unmapped(config), "label": [_batch_label(jobs[b.start:b.stop])
                                                          for b in batches]}
-        with _api_for_processes(), ProcessPoolTaskRunner(max_workers=n) as runner:
+        with _worker_env(), _api_for_processes(), ProcessPoolTaskRunner(max_workers=n) as runner:
             return _collect(runner.map(analyse, params), batches, len(jobs))
     batches = loop_batches(len(jobs), ANALYSIS_THREADS, batch_loops=1)
     futures = analyse.map(unmapped(db), [jobs[b.start:b.stop] for b in batches],
@@ -354,7 +373,7 @@ def _analyse_on_dask(db: str, run_id: str, jobs: list[LoopJob], config: ScanConf
                      partitions: str | None) -> list[LoopResult]:
     """Export the partitions, then run ``analyse-partitions`` tasks (batches of loops) on Dask."""
     paths = export(db, run_id, jobs, partitions)
-    with _dask_runner(workers, dask_address) as runner:
+    with _worker_env(), _dask_runner(workers, dask_address) as runner:
         batches = loop_batches(len(jobs), _dask_workers(runner, int(workers or 1)))
         params = {"paths": [paths[b.start:b.stop] for b in batches],
                   "jobs": [jobs[b.start:b.stop] for b in batches],
