@@ -238,6 +238,31 @@ def test_load_loop_frames_from_a_path_with_or_without_an_open_writer(tmp_path):
     assert shared["pv"].equals(alone["pv"]) and alone["op"].height == 61
 
 
+def test_loops_read_in_one_query_equal_the_loops_read_one_by_one(tmp_path):
+    """fetch_loop_windows (worker processes' batches) = load_loop_frames, loop by loop:
+    windows, the held set point's last sample before the window, missing tags."""
+    from valvediag.partition import fetch_loop_windows
+
+    store = _store_with(tmp_path, {"A.PV": 7200, "A.OP": 7200, "A.SP": 600,
+                                   "B.PV": 3600, "B.OP": 3000, "B.MODE": 5000})
+    loops = [LoopSpec("A", "A.PV", "A.OP", sp_tag="A.SP"),
+             LoopSpec("B", "B.PV", "B.OP", sp_tag="B.SP", mode_tag="B.MODE"),
+             LoopSpec("C", None, "C.OP", issues=("no PV tag in loops.csv",)),
+             LoopSpec("A2", "A.PV", "A.OP", sp_tag="A.SP")]
+    jobs = plan_loops(store, loops, ScanConfig(window_hours=1))
+    many = fetch_loop_windows(store, jobs)
+    assert len(many) == len(jobs)
+    for job, got in zip(jobs, many):
+        want = load_loop_frames(store, job)
+        assert got.keys() == want.keys() == job.spec.tags.keys()
+        for role in want:
+            assert got[role].equals(want[role]), (job.spec.loop, role)
+    assert many[0]["sp"].height == 1 and many[0]["pv"].height == 360   # SP held from before
+    assert many[2]["op"].is_empty()
+    assert fetch_loop_windows(store, []) == []
+    store.close()
+
+
 # -------------------------------------------------------- synthetic plants
 
 def _confusion(results, truth):

@@ -736,12 +736,16 @@ def analyse_stored_loops(db_path, jobs: Sequence[LoopJob], config: ScanConfig = 
 
     Notes
     -----
-    One loop is read at a time, so memory holds one loop's window (plus the
-    results). A batch of loops per call saves the cost of opening the store
-    (tens of milliseconds) per loop, which matters in worker processes.
+    The loops are read in one query
+    (:func:`valvediag.partition.fetch_loop_windows`, the frames
+    :func:`load_loop_frames` reads): reading them tag by tag scanned the
+    same row groups once per tag (0.19 s per loop-day at 1 s on a store of
+    149 M samples). Memory holds the batch's samples, about 5 MB per
+    loop-day at 1 s.
     """
     import duckdb
 
+    from .partition import fetch_loop_windows
     from .store import Store
 
     if not jobs:
@@ -751,7 +755,12 @@ def analyse_stored_loops(db_path, jobs: Sequence[LoopJob], config: ScanConfig = 
     except duckdb.ConnectionException:  # this process holds it read-write
         store = Store(db_path)
     with store:
-        return [analyse_loop(job, load_loop_frames(store, job), config) for job in jobs]
+        frames = fetch_loop_windows(store, jobs)
+    results = []
+    for k, job in enumerate(jobs):
+        results.append(analyse_loop(job, frames[k], config))
+        frames[k] = None      # free each loop's samples once analysed
+    return results
 
 
 # ------------------------------------------------------------------ analysis

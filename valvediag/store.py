@@ -352,8 +352,6 @@ class Store:
             return bool(self.con.execute(load_sql("samples_may_overlap"),
                                          {"tags": bounds["tag"].to_list()}).fetchall()[0][0])
 
-    _may_overlap = may_overlap  # the former private name
-
     def insert_new_samples(self, samples: pl.DataFrame, *, may_overlap: bool | None = None
                            ) -> int:
         """Insert samples whose (tag, ts) is not stored yet; return how many [rows].
