@@ -366,7 +366,7 @@ def main(argv=None) -> int:
                         help="store, outputs and logs (default out/bench_plant/run-...)")
     parser.add_argument("--workers", type=int, metavar="N",
                         help="end-to-end run on a local Dask cluster of N workers (default: "
-                             "threads, as 'valvediag scan' without --workers)")
+                             "worker processes, as 'valvediag scan' without --workers)")
     parser.add_argument("--speedup-loops", type=int, default=100, metavar="N",
                         help="loops of the Dask 1-vs-2-worker comparison (default 100; 0 skips)")
     parser.add_argument("--keep", action="store_true", help="keep the store afterwards")
@@ -418,7 +418,8 @@ def _main(args) -> int:
     db = work / "plant.duckdb"
     _fresh_store(db)
     shutil.rmtree(work / "prefect-home", ignore_errors=True)
-    mode = f"Dask, {args.workers} workers" if args.workers else "threads"
+    mode = (f"Dask, {args.workers} workers" if args.workers
+            else f"{cores} worker processes")
     print(f"end to end ({mode}): ingest into a fresh store + scan, timed ...", flush=True)
     e2e = _run_flow("e2e", work, exports, loops_csv, db, work / "out", args.workers)
     ev, t0, t1 = e2e["events"], e2e["t0"], e2e["t1"]
@@ -427,9 +428,8 @@ def _main(args) -> int:
     nan = float("nan")
     total_s = t1 - t0
     ingest_s = (i1 - t0) if i1 else nan
-    # from the ingest's end to the last loop analysed: registry, plan, task submission
-    # and the analyses (with threads the first loops run while the rest are submitted,
-    # so the two cannot be told apart from the flow's progress reports)
+    # from the ingest's end to the last loop analysed: registry, plan, the start of the
+    # worker processes and the analyses
     analyse_s = (a1 - i1) if a1 and i1 else nan
     after_s = (t1 - a1) if a1 else nan
     summ = e2e["summary"]
@@ -453,8 +453,7 @@ def _main(args) -> int:
           f"{_fmt_target(peak, TARGET_MB)}; process tree, {mem.method}; ingest "
           f"{peak_ingest:,.0f} MB, scan {peak_scan:,.0f} MB; largest process "
           f"{e2e['maxrss_mb']:,.0f} MB)")
-    print(f"  most threads at once:       {mem.peak_threads():7,d}  (process tree; the flow's "
-          f"analysis pool has {2 * cores} threads)")
+    print(f"  most threads at once:       {mem.peak_threads():7,d}  (process tree)")
     print(f"  verdicts: {counts}")
     print(f"  Prefect server start-up (not timed): {e2e['server_s']:.1f} s; cores {cores}",
           flush=True)
