@@ -50,10 +50,10 @@ single process (``getrusage`` maxrss) is printed too.
 The store and outputs go to ``--work-dir`` (default
 ``out/bench_plant/run-<loops>x<days>d-<ts>s``); the store is deleted at the
 end unless ``--keep``. A lock file in both directories keeps two runs apart.
-Quick run: ``--loops 50 --speedup-loops 20`` (about 3 minutes). The full
-default took 18 minutes on two cores (the README has the figures), plus one
-minute to generate the plant the first time (647 MB of Parquet; the store
-takes 530 MB). Exits 0 when the runs complete (whether or not the targets
+Quick run: ``--loops 50 --speedup-loops 20`` (about 2 minutes). The full
+default takes about 10 minutes on two cores (the README has the figures),
+plus one minute to generate the plant the first time (647 MB of Parquet;
+the store takes 530 MB). Exits 0 when the runs complete (whether or not the targets
 are met), 1 when a run fails or another run holds the directories, 2 on bad
 arguments.
 """
@@ -367,8 +367,8 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, metavar="N",
                         help="end-to-end run on a local Dask cluster of N workers (default: "
                              "worker processes, as 'valvediag scan' without --workers)")
-    parser.add_argument("--speedup-loops", type=int, default=100, metavar="N",
-                        help="loops of the Dask 1-vs-2-worker comparison (default 100; 0 skips)")
+    parser.add_argument("--speedup-loops", type=int, default=300, metavar="N",
+                        help="loops of the Dask 1-vs-2-worker comparison (default 300; 0 skips)")
     parser.add_argument("--keep", action="store_true", help="keep the store afterwards")
     parser.add_argument("--json", action="store_true", help="also print the figures as JSON")
     parser.add_argument("--child", metavar="SPEC", help=argparse.SUPPRESS)

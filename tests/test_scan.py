@@ -238,7 +238,7 @@ def test_load_loop_frames_from_a_path_with_or_without_an_open_writer(tmp_path):
     assert shared["pv"].equals(alone["pv"]) and alone["op"].height == 61
 
 
-def test_loops_read_in_one_query_equal_the_loops_read_one_by_one(tmp_path):
+def test_loops_read_in_one_query_equal_the_loops_read_one_by_one(tmp_path, monkeypatch):
     """fetch_loop_windows (worker processes' batches) = load_loop_frames, loop by loop:
     windows, the held set point's last sample before the window, missing tags."""
     from valvediag.partition import fetch_loop_windows
@@ -261,6 +261,15 @@ def test_loops_read_in_one_query_equal_the_loops_read_one_by_one(tmp_path):
     assert many[2]["op"].is_empty()
     assert fetch_loop_windows(store, []) == []
     store.close()
+    # analyse_stored_loops reads READ_LOOPS at a time; same results, in job order
+    from valvediag import scan as scan_mod
+
+    one_by_one = [analyse_loop(j, load_loop_frames(tmp_path / "s.duckdb", j)) for j in jobs]
+    for read_loops in (1, 3, 10):
+        monkeypatch.setattr(scan_mod, "READ_LOOPS", read_loops)
+        got = scan_mod.analyse_stored_loops(tmp_path / "s.duckdb", jobs)
+        assert [(r.loop, r.verdict, r.reason) for r in got] == \
+               [(r.loop, r.verdict, r.reason) for r in one_by_one]
 
 
 # -------------------------------------------------------- synthetic plants

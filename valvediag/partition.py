@@ -119,8 +119,9 @@ def fetch_loop_windows(store: Store, jobs: Sequence[LoopJob]) -> list[dict[str, 
     across files, so the row groups that may hold a tag are many (84 of
     1,225 for one tag of the 149 M-sample plant benchmark) and reading a
     loop tag by tag scans them again for every tag: 0.19 s per loop-day.
-    One query for a batch of loops scans each row group once. Memory holds
-    the whole batch (about 5 MB per loop-day at 1 s).
+    One query for a group of loops scans each row group once. Memory holds
+    the group's samples a few times over while DuckDB's result becomes
+    polars frames (see :func:`valvediag.scan.analyse_stored_loops`).
     """
     out = [{} for _ in jobs]
     frame = _jobs_frame(jobs)
