@@ -84,6 +84,10 @@ def test_sticky_loop_gives_stiction_with_evidence_and_severity():
     assert r.severity == pytest.approx(f["f_amp"] * f["f_reg"] * f["f_time"] * 2.0, rel=1e-4)
     assert r.process_type == "integrating" and r.evidence["process_type_source"] == "loops.csv"
     json.dumps(r.to_json(), allow_nan=False)  # plain JSON, no NaN
+    # the report's data: the BI's record is the diagnosed PV, kept once (not a view
+    # of the loop's whole grid)
+    d = r.detail.diagnosis
+    assert d.backlash.pv is d.pv and d.pv.base is None and d.pv.size == t.size
 
 
 def test_episode_is_trimmed_to_the_oscillating_part_of_a_segment():
