@@ -2,10 +2,12 @@
 straightforward code they replace."""
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 
 from valvediag.align import median_spacing
+from valvediag.bi import _fit_one
 from valvediag.linearity import mean_cycles
 from valvediag.oscillation import _periodic_fraction, resample_cycles
 
@@ -82,8 +84,58 @@ def test_periodic_fraction_of_a_clean_and_of_a_noisy_oscillation():
     assert _periodic_fraction(y, idx[:3], sgn[:3]) == 0.0
 
 
+@numba.njit
+def _fit_apices_one_model(y, ai, asg, qbs, qas, wgrid, reach, tail):
+    """Fit the apex model around every apex for every rounding width, over
+    ``qbs[a]`` samples before and ``qas[a]`` after the centre of apex ``a``.
+
+    The sub-sample position of the corner is searched on a half-sample grid
+    over ``+-reach`` samples, refined by successive halving to 1/64 sample.
+
+    Returns rss (A, W) and params (A, W, 5) = (shift, y0, m, b, c), time in
+    samples relative to the apex centre: the fit of one model at a time, as
+    valvediag.bi had it before :func:`_fit_apices_both`."""
+    nA = ai.size
+    nW = wgrid.size
+    rss = np.full((nA, nW), np.inf)
+    par = np.full((nA, nW, 5), np.nan)
+    A = np.empty((4, 4))
+    r = np.empty(4)
+    ngrid = int(round(4 * reach)) + 1
+    for a in range(nA):
+        k = ai[a]
+        s = asg[a]
+        qb = qbs[a]
+        qa = qas[a]
+        for wi in range(nW):
+            w = wgrid[wi]
+            best = np.inf
+            bsh = 0.0
+            for si in range(ngrid):
+                sh = -reach + 0.5 * si
+                v = _fit_one(y, k, s, qb, qa, sh, w, A, r, tail)
+                if v < best:
+                    best = v
+                    bsh = sh
+            step = 0.25
+            for _ in range(5):
+                centre = bsh
+                for sh in (centre - step, centre + step):
+                    v = _fit_one(y, k, s, qb, qa, sh, w, A, r, tail)
+                    if v < best:
+                        best = v
+                        bsh = sh
+                step *= 0.5
+            v = _fit_one(y, k, s, qb, qa, bsh, w, A, r, tail)
+            rss[a, wi] = v
+            par[a, wi, 0] = bsh
+            for i in range(4):
+                par[a, wi, 1 + i] = r[i]
+    return rss, par
+
+
 def test_both_apex_fits_at_once_equal_the_two_separate_fits():
-    from valvediag.bi import W_GRID, _fit_apices, _fit_apices_both
+    from valvediag.bi import W_GRID, _fit_apices_both
 
     rng = np.random.default_rng(7)
     t = np.arange(3000.0)
@@ -97,7 +149,7 @@ def test_both_apex_fits_at_once_equal_the_two_separate_fits():
     wgrid = W_GRID * 48.0
     rss, par = _fit_apices_both(y, ai, asg, qbs, qas, wgrid, 3.5)
     for k, tail in enumerate((False, True)):
-        r1, p1 = _fit_apices(y, ai, asg, qbs, qas, wgrid, 3.5, tail)
+        r1, p1 = _fit_apices_one_model(y, ai, asg, qbs, qas, wgrid, 3.5, tail)
         np.testing.assert_array_equal(rss[k], r1)
         np.testing.assert_array_equal(par[k], p1)
 

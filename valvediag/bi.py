@@ -277,65 +277,21 @@ def _apex_solve(A, r, szz, tail):
 
 
 @numba.njit(cache=True, nogil=True)
-def _fit_apices(y, ai, asg, qbs, qas, wgrid, reach, tail):
-    """Fit the apex model around every apex for every rounding width, over
-    ``qbs[a]`` samples before and ``qas[a]`` after the centre of apex ``a``.
+def _fit_apices_both(y, ai, asg, qbs, qas, wgrid, reach):
+    """Fit the apex model, without and with the tail term (index 0 and 1),
+    around every apex for every rounding width, over ``qbs[a]`` samples
+    before and ``qas[a]`` after the centre of apex ``a``.
 
     The sub-sample position of the corner is searched on a half-sample grid
     over ``+-reach`` samples, refined by successive halving to 1/64 sample.
+    Returns rss (2, A, W) and params (2, A, W, 5) = (shift, y0, m, b, c),
+    time in samples relative to the apex centre.
 
-    Returns rss (A, W) and params (A, W, 5) = (shift, y0, m, b, c), time in
-    samples relative to the apex centre. :func:`_fit_apices_both` gives the
-    same for both models at once."""
-    nA = ai.size
-    nW = wgrid.size
-    rss = np.full((nA, nW), np.inf)
-    par = np.full((nA, nW, 5), np.nan)
-    A = np.empty((4, 4))
-    r = np.empty(4)
-    ngrid = int(round(4 * reach)) + 1
-    for a in range(nA):
-        k = ai[a]
-        s = asg[a]
-        qb = qbs[a]
-        qa = qas[a]
-        for wi in range(nW):
-            w = wgrid[wi]
-            best = np.inf
-            bsh = 0.0
-            for si in range(ngrid):
-                sh = -reach + 0.5 * si
-                v = _fit_one(y, k, s, qb, qa, sh, w, A, r, tail)
-                if v < best:
-                    best = v
-                    bsh = sh
-            step = 0.25
-            for _ in range(5):
-                centre = bsh
-                for sh in (centre - step, centre + step):
-                    v = _fit_one(y, k, s, qb, qa, sh, w, A, r, tail)
-                    if v < best:
-                        best = v
-                        bsh = sh
-                step *= 0.5
-            v = _fit_one(y, k, s, qb, qa, bsh, w, A, r, tail)
-            rss[a, wi] = v
-            par[a, wi, 0] = bsh
-            for i in range(4):
-                par[a, wi, 1 + i] = r[i]
-    return rss, par
-
-
-@numba.njit(cache=True, nogil=True)
-def _fit_apices_both(y, ai, asg, qbs, qas, wgrid, reach):
-    """:func:`_fit_apices` without and with the tail term, index 0 and 1 of
-    the returned rss (2, A, W) and params (2, A, W, 5).
-
-    The results equal two calls of :func:`_fit_apices` bit for bit; the
-    normal equations of the half-sample grid of corner positions, which do
-    not depend on the model, are summed once for both, and the best fit's
-    parameters are kept rather than fitted again (a third fewer passes over
-    the data)."""
+    The normal equations of the half-sample grid of corner positions, which
+    do not depend on the model, are summed once for both models, and the
+    best fit's parameters are kept rather than fitted again (a third fewer
+    passes over the data than fitting each model on its own; the tests keep
+    that one-model fit as the reference, equal bit for bit)."""
     nA = ai.size
     nW = wgrid.size
     rss = np.full((2, nA, nW), np.inf)
@@ -383,7 +339,7 @@ def _fit_apices_both(y, ai, asg, qbs, qas, wgrid, reach):
                             rb[t, :] = r
                     step *= 0.5
                 if not best[t] < np.inf:
-                    # no finite fit: what the final fit leaves, as _fit_apices
+                    # no finite fit: what the final fit leaves, as a one-model fit would
                     best[t] = _fit_one(y, k, s, qb, qa, bsh[t], w, A, r, tail)
                     rb[t, :] = r
                 rss[t, a, wi] = best[t]
