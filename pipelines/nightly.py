@@ -242,15 +242,18 @@ def loop_batches(n_loops: int, workers: int, batch_loops: int = BATCH_LOOPS
     return [range(a, min(a + per, n_loops)) for a in range(0, n_loops, per)]
 
 
-def _batch_label(jobs: Sequence[LoopJob]) -> str:
-    first, last = jobs[0].spec.loop, jobs[-1].spec.loop
-    return first if len(jobs) == 1 else f"{first}..{last} ({len(jobs)} loops)"
+def _batched(jobs: list[LoopJob], batches: list[range]) -> dict[str, list]:
+    """Mapped task arguments: each batch's jobs and its label (the task run's name)."""
+    groups = [jobs[b.start:b.stop] for b in batches]
+    labels = [g[0].spec.loop if len(g) == 1 else
+              f"{g[0].spec.loop}..{g[-1].spec.loop} ({len(g)} loops)" for g in groups]
+    return {"jobs": groups, "label": labels}
 
 
 @task(name="analyse-loops", retries=1, retry_delay_seconds=2, retry_condition_fn=_transient,
       cache_policy=NO_CACHE, task_run_name="analyse-{label}")
 def analyse(db: str, jobs: list[LoopJob], config: ScanConfig, label: str = "") -> list[LoopResult]:
-    """A batch of loops: read each from the store (read-only) and diagnose it."""
+    """A batch of loops: read them from the store (read-only) and diagnose each."""
     return analyse_stored_loops(db, jobs, config)
 
 
@@ -357,15 +360,12 @@ def _analyse_here(db: str, jobs: list[LoopJob], config: ScanConfig,
     n = ANALYSIS_PROCESSES if processes is None else int(processes)
     if n >= 1 and len(jobs) >= MIN_LOOPS_FOR_PROCESSES:
         batches = loop_batches(len(jobs), n)
-        params = {"db": unmapped(db), "jobs": [jobs[b.start:b.stop] for b in batches],
-                  "config": unmapped(config), "label": [_batch_label(jobs[b.start:b.stop])
-                                                         for b in batches]}
+        params = {"db": unmapped(db), "config": unmapped(config), **_batched(jobs, batches)}
         with _worker_env(), _api_for_processes(), ProcessPoolTaskRunner(max_workers=n) as runner:
             return _collect(runner.map(analyse, params), batches, len(jobs))
     batches = loop_batches(len(jobs), ANALYSIS_THREADS, batch_loops=1)
-    futures = analyse.map(unmapped(db), [jobs[b.start:b.stop] for b in batches],
-                          unmapped(config), [_batch_label(jobs[b.start:b.stop]) for b in batches])
-    return _collect(list(futures), batches, len(jobs))
+    params = {"db": unmapped(db), "config": unmapped(config), **_batched(jobs, batches)}
+    return _collect(list(analyse.map(**params)), batches, len(jobs))
 
 
 def _analyse_on_dask(db: str, run_id: str, jobs: list[LoopJob], config: ScanConfig,
@@ -376,9 +376,7 @@ def _analyse_on_dask(db: str, run_id: str, jobs: list[LoopJob], config: ScanConf
     with _worker_env(), _dask_runner(workers, dask_address) as runner:
         batches = loop_batches(len(jobs), _dask_workers(runner, int(workers or 1)))
         params = {"paths": [paths[b.start:b.stop] for b in batches],
-                  "jobs": [jobs[b.start:b.stop] for b in batches],
-                  "config": unmapped(config),
-                  "label": [_batch_label(jobs[b.start:b.stop]) for b in batches]}
+                  "config": unmapped(config), **_batched(jobs, batches)}
         return _collect(runner.map(analyse_partitions, params), batches, len(jobs))
 
 
