@@ -25,7 +25,9 @@ from valvediag.registry import read_loops_csv
 from valvediag.store import VERDICTS, Store
 from valvediag.synthplant import synth_plant
 
-N_LOOPS, DAYS, SAMPLE_TIME, SEED = 10, 4 / 24, 5.0, 5
+# at least pipelines.nightly.MIN_LOOPS_FOR_PROCESSES loops: the flow run analyses them
+# on worker processes of the process worker's flow run, as a plant's nightly run does
+N_LOOPS, DAYS, SAMPLE_TIME, SEED = 16, 4 / 24, 5.0, 5
 RUN_TIMEOUT_S = 300
 TERMINAL = {"COMPLETED", "FAILED", "CRASHED", "CANCELLED"}
 
@@ -99,6 +101,15 @@ def test_prefect_deployment_run_completes_and_writes_results(stack):
     assert runs["run_id"].to_list() == [verdicts["run_id"]]
     assert runs["status"].to_list() == ["complete"]
     assert stored.height == len(loops)
+
+    # batches of several loops: the worker-process path, not the threads of a small plant
+    from pipelines.nightly import MIN_LOOPS_FOR_PROCESSES
+
+    assert N_LOOPS >= MIN_LOOPS_FOR_PROCESSES
+    tasks = serve.api_post(stack["api_url"], "/task_runs/filter",
+                           {"flow_runs": {"id": {"any_": [run["id"]]}}})
+    batches = [t["name"] for t in tasks if t["name"].startswith("analyse-")]
+    assert batches and all(re.search(r"\(\d+ loops\)$", n) for n in batches), batches
 
     arts = serve.api_post(stack["api_url"], "/artifacts/filter",
                           {"artifacts": {"flow_run_id": {"any_": [run["id"]]}}})
