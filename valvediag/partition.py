@@ -50,23 +50,8 @@ _JOBS_SCHEMA = {"job": pl.Int64, "role": pl.String, "tag": pl.String,
                 "w_start": pl.Datetime("us", "UTC"), "w_end": pl.Datetime("us", "UTC"),
                 "held": pl.Boolean}
 
-# One group of loops: the window samples of every (loop, role), plus the last
-# sample before the window for held roles (set point, mode). The tag filter
-# (a literal list) lets DuckDB skip row groups by their tag statistics.
-_WINDOWS_SQL = """
-SELECT j.job, j.role, s.ts, s.value, s.status
-FROM samples AS s JOIN export_jobs AS j
-  ON s.tag = j.tag AND s.ts >= j.w_start AND s.ts < j.w_end
-WHERE list_contains($tags, s.tag) AND s.ts >= $t0 AND s.ts < $t1
-UNION ALL
-SELECT j.job, j.role, s.ts, s.value, s.status
-FROM samples AS s JOIN export_jobs AS j
-  ON s.tag = j.tag AND s.ts < j.w_start AND j.held
-WHERE list_contains($held_tags, s.tag) AND s.ts < $t_held
-QUALIFY row_number() OVER (PARTITION BY j.job, j.role ORDER BY s.ts DESC) = 1
-"""
-_EXPORT_SQL = ("COPY (" + _WINDOWS_SQL + ") TO '{path}' "
-               "(FORMAT parquet, PARTITION_BY (job), OVERWRITE_OR_IGNORE, COMPRESSION zstd)")
+#: Parquet export of :func:`_windows`' query (``sql/loop_windows.sql``), per job.
+_COPY_OPTIONS = "(FORMAT parquet, PARTITION_BY (job), OVERWRITE_OR_IGNORE, COMPRESSION zstd)"
 
 
 def _jobs_frame(jobs: Sequence[LoopJob], first: int = 0) -> pl.DataFrame:
@@ -79,10 +64,14 @@ def _jobs_frame(jobs: Sequence[LoopJob], first: int = 0) -> pl.DataFrame:
 
 def _windows(store: Store, frame: pl.DataFrame, copy_to: Path | None = None
              ) -> pl.DataFrame | None:
-    """The window samples of the jobs of ``frame`` (:data:`_WINDOWS_SQL`), or, with
+    """The window samples of the jobs of ``frame`` (``sql/loop_windows.sql``), or, with
     ``copy_to``, written there as Parquet partitioned by job (None returned)."""
-    sql = (_WINDOWS_SQL if copy_to is None
-           else _EXPORT_SQL.format(path=str(copy_to).replace("'", "''")))
+    from .store import load_sql
+
+    sql = load_sql("loop_windows")
+    if copy_to is not None:
+        path = str(copy_to).replace("'", "''")
+        sql = f"COPY ({sql}) TO '{path}' {_COPY_OPTIONS}"
     held = sorted(set(frame.filter("held")["tag"])) or [""]
     params = {"tags": sorted(set(frame["tag"])), "held_tags": held,
               "t0": frame["w_start"].min(), "t1": frame["w_end"].max(),
