@@ -1,10 +1,17 @@
 import os
 
 import pytest
+from hypothesis import settings
 
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 os.environ.setdefault("DO_NOT_TRACK", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+# The property-based tests draw new examples on every `make test`, so a developer's
+# runs keep exploring. CI (.ci/run sets HYPOTHESIS_PROFILE=ci) draws a fixed set,
+# so that whether a commit lands depends on the code, not on the draw.
+settings.register_profile("ci", derandomize=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 
 @pytest.fixture(scope="session")

@@ -1173,6 +1173,7 @@ def loop_csv_text(draw) -> str:
 @given(text=st.one_of(loop_csv_text(), st.text(max_size=80)))
 @example(text="timestamp,pv,op\n0,1,2\n1,2,3\ninf,3,4\n")
 @example(text="timestamp,pv,op\n0,1,2\n1,2,3\n2,2,3\n1e15,3,4\n")
+@example(text="\x0c\n0")     # a form feed for a header: escaped in the one-line message
 def test_read_loop_csv_random_text_only_loopfile_error(text):
     """Random and malformed single-loop CSV: ``LoopFileError`` with one line naming the
     file, or a record on a uniform, increasing grid with arrays of the grid's length."""

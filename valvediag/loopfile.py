@@ -34,7 +34,19 @@ MAX_GRID_POINTS = 40_000_000
 
 class LoopFileError(ValueError):
     """A single-loop file that cannot be read; the message names the file
-    and the problem in one line."""
+    and the problem in one line.
+
+    Characters of the message that are not printable (line breaks, form
+    feeds and other controls, from the file's header or cells) are shown
+    escaped, e.g. ``\\x0c``, so that the message stays one line.
+    """
+
+    def __init__(self, message: str):
+        text = str(message)
+        if not text.isprintable():
+            text = "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
+                           for c in text)
+        super().__init__(text)
 
 
 @dataclass(frozen=True)
