@@ -76,18 +76,29 @@ def _scan_args(plant: Path, work: Path, *extra: str) -> list[str]:
 
 
 # A `valvediag scan` whose ingest reads every file in slices of 400 rows and says on stdout
-# when a slice has been committed, so a test can kill it in the middle of a file.
+# when a slice's transaction has committed, so a test can kill it in the middle of a file.
+# (The ingest parses the next slice while it writes this one, so the reader running
+# ahead says nothing about what is committed.)
 _SLICED_SCAN = textwrap.dedent("""
-    import sys
+    import contextlib, sys
     import valvediag.ingest as ig
-    _iter = ig.iter_export
+    from valvediag.store import Store
+    _iter, _write, _transaction = ig.iter_export, ig._write_parsed, Store.transaction
+    written = []
     def sliced(path, **kw):
         kw["chunk_rows"] = 400
-        for i, part in enumerate(_iter(path, **kw)):
-            if i:   # the slice before this one is committed
-                print("committed", path, i, flush=True)
-            yield part
-    ig.iter_export = sliced
+        return _iter(path, **kw)
+    def write(store, parsed):
+        written.append(parsed.path)
+        return _write(store, parsed)
+    @contextlib.contextmanager
+    def transaction(self):
+        before = len(written)
+        with _transaction(self) as store:
+            yield store
+        if len(written) > before:
+            print("committed", written[-1], len(written), flush=True)
+    ig.iter_export, ig._write_parsed, Store.transaction = sliced, write, transaction
     from valvediag.cli import main
     sys.exit(main(sys.argv[1:]))
 """)
