@@ -11,21 +11,44 @@ export DO_NOT_TRACK := 1
 export PREFECT_HOME ?= $(CURDIR)/.prefect
 export MPLBACKEND := Agg
 
-.PHONY: help install test demo serve bench clean
+.PHONY: help install test test-latest lock demo serve bench clean
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
 
-$(STAMP): pyproject.toml
+# Installs come from requirements.lock: every package at the exact version (and file
+# hash) the suite was last run with, so a new machine runs what was tested. The build
+# back end is locked too (--no-build-isolation), so nothing is resolved at install time.
+$(STAMP): pyproject.toml requirements.lock
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test]'
+	$(PY) -m pip install -q --require-hashes -r requirements.lock
+	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
-install: $(STAMP)  ## create .venv and install valvediag with its test tools
+install: $(STAMP)  ## create .venv and install valvediag with its test tools, from requirements.lock
 
-test: $(STAMP)  ## run the test suite
+test: $(STAMP)  ## run the test suite (the locked versions)
 	$(PY) -m pytest -q
+
+# uv resolves the lock (fast, with hashes of every file of each version); pip installs
+# it, so a fresh machine needs nothing beyond Python to set up.
+UV_VERSION := 0.13.9
+TOOLS := .venv-tools
+LATEST := .venv-latest
+
+lock:  ## re-resolve requirements.lock to the newest versions pyproject.toml allows
+	$(PYTHON) -m venv $(TOOLS)
+	$(TOOLS)/bin/python -m pip install -q uv==$(UV_VERSION)
+	$(TOOLS)/bin/uv pip compile pyproject.toml requirements-build.in --extra test \
+	    --generate-hashes --universal --python-version 3.11 --upgrade -o requirements.lock
+
+test-latest:  ## run the suite on the newest versions pyproject.toml allows (drift check, not CI)
+	rm -rf $(LATEST)
+	$(PYTHON) -m venv $(LATEST)
+	$(LATEST)/bin/python -m pip install -q --upgrade -e '.[test]'
+	$(LATEST)/bin/python -m pip freeze --exclude-editable > $(LATEST)/versions.txt
+	$(LATEST)/bin/python -m pytest -q -p no:cacheprovider
+	@echo "passed on the newest versions ($(LATEST)/versions.txt); 'make lock' adopts them"
 
 # Data of the nightly scan. `make serve` deploys with these (default: data/exports,
 # data/loops.csv, data/valvediag.duckdb, out/nightly); `make demo` scans EXPORTS/LOOPS
@@ -66,4 +89,4 @@ bench: $(STAMP)  ## print the benchmark figures
 	$(PY) benchmarks/run_all.py
 
 clean:  ## remove the virtual environment and outputs
-	rm -rf $(VENV) out .prefect
+	rm -rf $(VENV) $(TOOLS) $(LATEST) out .prefect

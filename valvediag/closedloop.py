@@ -33,15 +33,15 @@ import numba
 import numpy as np
 from scipy.linalg import expm
 
-from .valves import VALVE_MODELS, _valve_init, _valve_step
+from .valves import VALVE_MODELS, valve_init, valve_step
 
 __all__ = ["simulate_loop", "LoopSimulation", "process_matrices"]
 
 # Columns of the per-scenario parameter table handed to the kernel.
 (C_KC, C_TI, C_H, C_VCODE, C_VP0, C_VP1, C_ND, C_SP0, C_SPSTEP, C_SPT, C_LOAD0,
  C_LSTEP, C_LSTEPT, C_LDRIFT, C_LSINA, C_LSINW, C_LSINPHI, C_NOISE, C_SEED,
- C_OPLO, C_OPHI, C_X0, C_Y0, C_Z0, C_NMAX, C_LNOISE) = range(26)
-N_COLS = 26
+ C_OPLO, C_OPHI, C_X0, C_Y0, C_Z0, C_NMAX, C_LNOISE, C_VBAND) = range(27)
+N_COLS = 27
 
 
 def process_matrices(process, process_gain, tau, lag, dead_time, sample_time):
@@ -130,7 +130,8 @@ def _simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_
         buf[j] = v0
     z = P[C_Z0]
     y = P[C_Y0]
-    vx, vup, vd, vstuck, vus, vcause = _valve_init(vcode, x0, x0)
+    vband = P[C_VBAND]
+    vx, vup, vd, vstuck, vus, vcause, vue = valve_init(vcode, x0, x0)
     integ = x0 / kc if kc != 0.0 else 0.0
     last_dir = 0.0
     x_prev = x0
@@ -186,8 +187,8 @@ def _simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_
             elif u < op_lo:
                 u = op_lo
                 integ = u / kc - e
-        vx, vup, vd, vstuck, vus, vcause = _valve_step(vcode, vp0, vp1, u, vx, vup, vd, vstuck,
-                                                       vus, vcause)
+        vx, vup, vd, vstuck, vus, vcause, vue = valve_step(vcode, vp0, vp1, vband, u, vx, vup, vd,
+                                                           vstuck, vus, vcause, vue)
         x = vx
         out_pv[k] = pv
         if not pv_only:
@@ -236,7 +237,7 @@ def _simulate_batch(P, phi_f, gam_f, phi_g, gam_g, n, pv, op, mv, sp):
 def _param_table(m, *, kc, ti, sample_time, valve, valve_params, process, process_gain, tau,
                  lag, dead_time, sp, sp_step, sp_step_time, load, load_step, load_step_time,
                  load_drift, load_sin_amplitude, load_sin_period, load_sin_phase, noise_std,
-                 seed, op_limits, load_noise_std=0.0):
+                 seed, op_limits, load_noise_std=0.0, valve_noise_band=0.0):
     """Build the (m, N_COLS) kernel table and process matrices."""
     P = np.zeros((m, N_COLS))
 
@@ -283,6 +284,9 @@ def _param_table(m, *, kc, ti, sample_time, valve, valve_params, process, proces
     col(C_LSINPHI, load_sin_phase)
     col(C_NOISE, noise_std)
     col(C_LNOISE, load_noise_std)
+    col(C_VBAND, valve_noise_band)
+    if np.any(~np.isfinite(P[:, C_VBAND])) or np.any(P[:, C_VBAND] < 0):
+        raise ValueError("valve_noise_band must be finite and >= 0")
     seeds = np.random.SeedSequence(seed).generate_state(m, dtype=np.uint32) if seed is not None \
         else np.random.SeedSequence().generate_state(m, dtype=np.uint32)
     P[:, C_SEED] = seeds
@@ -361,7 +365,7 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
                   load=0.0, load_step=0.0, load_step_time=0.0, load_drift=0.0,
                   load_sin_amplitude=0.0, load_sin_period=np.inf, load_sin_phase=0.0,
                   load_noise_std=0.0, noise_std=0.0, seed=None,
-                  op_limits=(-np.inf, np.inf)) -> LoopSimulation:
+                  op_limits=(-np.inf, np.inf), valve_noise_band=0.0) -> LoopSimulation:
     """Simulate PI control loops with a valve model, vectorised over scenarios.
 
     Every numeric argument may be a scalar or an array of shape (m,), one value
@@ -413,6 +417,11 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
         Seed for the noise; each scenario gets its own stream.
     op_limits : tuple of float
         Controller output limits [OP unit]; the integral is clamped there.
+    valve_noise_band : float or array_like
+        Noise band of a Kano or Choudhury valve's actuator [OP unit]: the OP
+        must fall back more than this from its running extreme to reverse
+        the valve (:func:`valvediag.valves.kano`). With measurement noise fed
+        back, a valve without one sticks at every noise reversal. Default 0.
 
     Returns
     -------
@@ -446,7 +455,7 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
         load_step_time=load_step_time, load_drift=load_drift,
         load_sin_amplitude=load_sin_amplitude, load_sin_period=load_sin_period,
         load_sin_phase=load_sin_phase, noise_std=noise_std, seed=seed, op_limits=op_limits,
-        load_noise_std=load_noise_std)
+        load_noise_std=load_noise_std, valve_noise_band=valve_noise_band)
     if n_samples is None:
         if duration is None:
             raise TypeError("give duration [s] or n_samples")

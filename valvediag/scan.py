@@ -129,14 +129,6 @@ MIN_RAW_PER_CYCLE = 10.0
 #: Severity: amplitude scale [% of span] and the largest criticality weight.
 AMPLITUDE_SCALE_PCT = 5.0
 MAX_CRITICALITY = 10.0
-#: Most samples (the latest of the diagnosed episode) fitted for a fault's size [-].
-SIZE_MAX_SAMPLES = 43_200
-#: Most oscillation periods (the latest of the episode) fitted for a fault's size [-]:
-#: more cycles than this barely change the size but cost time in proportion.
-SIZE_MAX_CYCLES = 100.0
-#: A record finer than this many samples per period is subsampled (every k-th
-#: sample) for the size fit [samples per period].
-SIZE_SAMPLES_PER_PERIOD = 120.0
 #: Loops read from the store in one query by :func:`analyse_stored_loops` [-].
 READ_LOOPS = 10
 #: Buckets of the PV sparkline kept for every loop (min and max of each) [-].
@@ -938,17 +930,15 @@ def valve_fault_size(aligned: AlignedLoop, a: int, b: int, fault: str,
     aligned : valvediag.align.AlignedLoop
         The loop on its grid.
     a, b : int
-        Grid points ``[a, b)`` of the episode behind the verdict; its latest
-        :data:`SIZE_MAX_SAMPLES` points, and at most :data:`SIZE_MAX_CYCLES`
-        periods, are fitted.
+        Grid points ``[a, b)`` of the episode behind the verdict; the part
+        :func:`valvediag.workbench.size_window` chooses is fitted.
     fault : {'stiction', 'backlash'}
         The verdict.
     process_type : str
         ``'self-regulating'`` fits a first-order plant; anything else an
         integrating one.
     period : float, optional
-        The episode's oscillation period [s]. Without it (NaN) only
-        :data:`SIZE_MAX_SAMPLES` limits the record and it is not subsampled.
+        The episode's oscillation period [s].
 
     Returns
     -------
@@ -964,28 +954,12 @@ def valve_fault_size(aligned: AlignedLoop, a: int, b: int, fault: str,
     band that, put in front of the fitted plant, reproduces the PV best on
     held-out stretches. A low ``confidence`` means the model explains the PV
     poorly or the fault barely improves it over a linear valve.
-
-    The fit's cost grows with the samples times the model evaluations
-    (about a thousand), so the record is limited to the latest
-    :data:`SIZE_MAX_CYCLES` periods and a record with more than
-    :data:`SIZE_SAMPLES_PER_PERIOD` samples per period is subsampled by the
-    integer factor that brings it to at least that many (every k-th sample,
-    ending at the episode's last one; sample time ``k h``). On the 100-loop
-    synthetic plant (1 s, 24 h) this cut the work about fourfold and left the
-    median ratio of the size to the simulated one at 0.84 (0.85 with the
-    whole episode) on the sizes of confidence >= 0.8. A dead time shorter
-    than ``k h`` is still fitted (it is fractional).
     """
-    from .workbench import estimate_valve_size
+    from .workbench import estimate_valve_size, size_window
 
     h = aligned.sample_time
-    keep = SIZE_MAX_SAMPLES
-    k = 1
-    if math.isfinite(period) and period > 0 and h > 0:
-        keep = min(keep, int(math.ceil(SIZE_MAX_CYCLES * period / h)))
-        k = max(1, int(period / h // SIZE_SAMPLES_PER_PERIOD))
-    a = max(a, b - keep)
-    a += (b - 1 - a) % k          # the subsampled record ends at the episode's last sample
+    off, k = size_window(b - a, h, period)
+    a += off
     ptype = "self-regulating" if process_type == "self-regulating" else "integrating"
     sp = aligned.sp[a:b:k] if aligned.sp is not None else None
     try:

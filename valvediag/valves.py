@@ -16,9 +16,9 @@ No clipping to 0-100 % is applied (some published code does that; real OP
 ranges differ). The valve starts at rest at ``x0`` (default: the first input
 value), centred in its dead band.
 
-The step functions (``_valve_step``) are shared with the closed-loop simulator
-in :mod:`valvediag.closedloop`, so open-loop and closed-loop results agree
-exactly.
+The step functions (:func:`valve_init`, :func:`valve_step`) are shared with the
+closed-loop simulator in :mod:`valvediag.closedloop` and the workbench's
+kernels, so open-loop, closed-loop and fitted valves agree exactly.
 
 References
 ----------
@@ -37,7 +37,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["linear", "backlash", "kano", "choudhury", "he", "VALVE_MODELS", "apply_valve"]
+__all__ = ["linear", "backlash", "kano", "choudhury", "he", "VALVE_MODELS", "apply_valve",
+           "valve_init", "valve_step"]
 
 # Model codes used inside the compiled kernels.
 LINEAR, BACKLASH, KANO, CHOUDHURY, HE = 0, 1, 2, 3, 4
@@ -53,25 +54,34 @@ VALVE_MODELS: dict[str, tuple[int, tuple[str, ...]]] = {
 
 # Valve state, carried as a tuple (kept in registers by the compiler):
 # (x position, u_prev, direction d, stuck flag, u at stick / residual force,
-# cause of sticking).
+# cause of sticking, running extreme of the input in direction d).
 # Why a Kano/Choudhury valve is stuck: after a reversal, after the input came to
 # rest, or at the start of the record (centred in the band).
 _CAUSE_REVERSAL, _CAUSE_REST, _CAUSE_START = 1.0, 0.0, 2.0
 
 
 @numba.njit(cache=True, inline="always")
-def _valve_init(model, u0, x0):
-    """State of a valve at rest at position ``x0`` with input ``u0``."""
+def valve_init(model, u0, x0):
+    """State of a valve at rest at position ``x0`` with input ``u0``.
+
+    Returns the state tuple ``(x, u_prev, d, stuck, u_stuck, cause,
+    u_extreme)`` that :func:`valve_step` advances."""
     # the He model keeps its residual force in the fifth slot
-    return x0, u0, 0.0, 1.0, (0.0 if model == HE else u0), _CAUSE_START
+    return x0, u0, 0.0, 1.0, (0.0 if model == HE else u0), _CAUSE_START, u0
 
 
 @numba.njit(cache=True, inline="always")
-def _valve_step(model, p0, p1, u, x, up, d, stuck, us, cause):
+def valve_step(model, p0, p1, band, u, x, up, d, stuck, us, cause, ue):
     """Advance one valve by one sample with input ``u``.
 
-    Takes and returns the state tuple ``(x, u_prev, d, stuck, u_stuck,
-    cause)``; ``x`` is the new position."""
+    Takes and returns the state tuple of :func:`valve_init`; ``x`` is the new
+    position. ``p0, p1`` are the model's parameters (``DB``; ``S, J``;
+    ``fs, fd``) and ``band`` the noise band of a Kano or Choudhury valve's
+    actuator [OP unit]: a fall of the input against the direction of travel
+    by no more than ``band`` from its running extreme is not a reversal (a
+    moving valve holds at the extreme, a stuck one keeps its stick point);
+    0 gives the models exactly as published. Compiled with numba; shared by
+    the open-loop models, the closed-loop simulator and the workbench."""
     if model == LINEAR:
         x = u
     elif model == BACKLASH:
@@ -95,13 +105,18 @@ def _valve_step(model, p0, p1, u, x, up, d, stuck, us, cause):
                 stuck = 1.0
                 us = up
                 cause = _CAUSE_REST
-        elif nd != d:
-            if d != 0.0:
-                # reversal: the valve sticks where the input turned
-                stuck = 1.0
-                us = up
-                cause = _CAUSE_REVERSAL
+        elif d == 0.0:
             d = nd
+            ue = u
+        elif d * (u - ue) > 0.0:
+            ue = u                  # on in the direction of travel
+        elif d * (ue - u) > band:
+            # reversal: the valve sticks where the input turned
+            stuck = 1.0
+            us = ue
+            cause = _CAUSE_REVERSAL
+            d = nd
+            ue = u
         if stuck == 1.0:
             if d != 0.0:
                 if cause == _CAUSE_START:
@@ -114,7 +129,7 @@ def _valve_step(model, p0, p1, u, x, up, d, stuck, us, cause):
                     x = u - d * 0.5 * (S - J)
                     stuck = 0.0
         else:
-            x = u - d * 0.5 * (S - J)
+            x = ue - d * 0.5 * (S - J)
     elif model == HE:
         fs = p0
         fd = p1
@@ -124,25 +139,26 @@ def _valve_step(model, p0, p1, u, x, up, d, stuck, us, cause):
             x = u - us
         else:
             us = temp
-    return x, u, d, stuck, us, cause
+    return x, u, d, stuck, us, cause, ue
 
 
 @numba.njit(cache=True, parallel=True)
-def _run_open_loop(model, op, p0, p1, x0):
+def _run_open_loop(model, op, p0, p1, band, x0):
     m, n = op.shape
     out = np.empty_like(op)
     for i in numba.prange(m):
-        x, up, d, stuck, us, cause = _valve_init(model, op[i, 0], x0[i])
+        x, up, d, stuck, us, cause, ue = valve_init(model, op[i, 0], x0[i])
         a = p0[i]
         b = p1[i]
+        c = band[i]
         for k in range(n):
-            x, up, d, stuck, us, cause = _valve_step(model, a, b, op[i, k], x, up, d, stuck, us,
-                                                     cause)
+            x, up, d, stuck, us, cause, ue = valve_step(model, a, b, c, op[i, k], x, up, d, stuck,
+                                                        us, cause, ue)
             out[i, k] = x
     return out
 
 
-def apply_valve(model: str, op, x0=None, **params) -> np.ndarray:
+def apply_valve(model: str, op, x0=None, *, noise_band=0.0, **params) -> np.ndarray:
     """Apply a named valve model to one OP sequence or a batch of them.
 
     Parameters
@@ -153,6 +169,11 @@ def apply_valve(model: str, op, x0=None, **params) -> np.ndarray:
         Controller output, one row per valve [OP unit, e.g. %].
     x0 : float or array_like of shape (m,), optional
         Initial valve position [OP unit]. Default: the first OP value.
+    noise_band : float or array_like of shape (m,)
+        Kano and Choudhury valves: a fall of the input against the direction
+        of travel by no more than this from its running extreme is not a
+        reversal [OP unit] (an actuator that does not reverse on OP noise;
+        see :func:`kano`). Default 0: the models as published.
     **params : float or array_like of shape (m,)
         The model's parameters [OP unit].
 
@@ -180,8 +201,12 @@ def apply_valve(model: str, op, x0=None, **params) -> np.ndarray:
             raise ValueError(f"valve parameter {nm} must be finite and >= 0")
     p0 = np.ascontiguousarray(vals[0]) if vals else np.zeros(m)
     p1 = np.ascontiguousarray(vals[1]) if len(vals) > 1 else np.zeros(m)
+    band = np.ascontiguousarray(np.broadcast_to(np.asarray(noise_band, dtype=float), (m,)))
+    if np.any(~np.isfinite(band)) or np.any(band < 0):
+        raise ValueError("noise_band must be finite and >= 0")
     start = u2[:, 0] if x0 is None else np.broadcast_to(np.asarray(x0, dtype=float), (m,))
-    out = _run_open_loop(code, np.ascontiguousarray(u2), p0, p1, np.ascontiguousarray(start, dtype=float))
+    out = _run_open_loop(code, np.ascontiguousarray(u2), p0, p1, band,
+                         np.ascontiguousarray(start, dtype=float))
     return out[0] if u.ndim == 1 else out
 
 
@@ -238,7 +263,7 @@ def backlash(op, DB, x0=None):
     return apply_valve("backlash", op, x0=x0, DB=DB)
 
 
-def kano(op, S, J, x0=None):
+def kano(op, S, J, x0=None, noise_band=0.0):
     """Kano et al. (2004) two-parameter stiction model.
 
     The valve sticks when its input reverses or comes to rest (two equal
@@ -259,6 +284,11 @@ def kano(op, S, J, x0=None):
         Initial position [%]; default ``op[..., 0]``. The valve starts at rest
         and first breaks away when the input has moved ``S/2`` from its first
         value (it is centred in its band).
+    noise_band : float or array_like of shape (m,), optional
+        Noise band of the actuator [%]: the input must fall back more than
+        this from its running extreme to count as a reversal; meanwhile a
+        moving valve holds at the extreme and a stuck one keeps its stick
+        point. Default 0 (the model as published).
 
     Returns
     -------
@@ -271,7 +301,12 @@ def kano(op, S, J, x0=None):
 
     * a held or compressed OP sample counts as a rest, so historian
       compression creates false stops (and false ``J`` jumps);
-    * noise on the OP creates false reversals;
+    * noise on the OP creates false reversals: the valve sticks at every
+      one and needs the whole band ``S`` again, so it hardly moves. A real
+      actuator (a pneumatic diaphragm behind a positioner) does not reverse
+      on controller noise; ``noise_band`` a few times the OP's noise
+      standard deviation keeps the reversals of the travel and drops those
+      of the noise (the model as published when 0);
     * the apparent jump grows with the sample time: apply the model at the
       native sampling rate, do not resample;
     * the start of a record depends on the unknown initial state: discard data
@@ -285,7 +320,7 @@ def kano(op, S, J, x0=None):
     .. [1] Kano, M., Maruta, H., Kugemoto, H., Shimizu, K. (2004). Practical
        model and detection algorithm for valve stiction. IFAC DYCOPS 7.
     """
-    return apply_valve("kano", op, x0=x0, S=S, J=J)
+    return apply_valve("kano", op, x0=x0, noise_band=noise_band, S=S, J=J)
 
 
 def choudhury(op, S, J, x0=None):

@@ -45,12 +45,12 @@ from .diagnosis import Diagnosis, WorstSegment, diagnose_fit
 from .effects import EFFECT_NAMES, EFFECTS, PLANT_PARAMS, Effect, Param, check_effects
 from .fit import Theta
 from .model import LoopModel, ModelFit, fit_model
-from .size import estimate_valve_size
+from .size import estimate_valve_size, size_window
 from .suggest import (ErrorLadder, Evidence, LadderStep, Suggestion, Suggestions, diagnose,
                       effect_evidence, forward_select, suggest_effects)
 
 __all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "Diagnosis", "WorstSegment",
            "diagnose_fit", "EFFECTS", "EFFECT_NAMES", "PLANT_PARAMS", "Effect", "Param",
            "check_effects", "Theta", "LoopModel", "ModelFit", "fit_model",
-           "estimate_valve_size", "ErrorLadder", "Evidence", "LadderStep", "Suggestion",
+           "estimate_valve_size", "size_window", "ErrorLadder", "Evidence", "LadderStep", "Suggestion",
            "Suggestions", "diagnose", "effect_evidence", "forward_select", "suggest_effects"]

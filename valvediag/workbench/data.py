@@ -15,16 +15,68 @@ import numpy as np
 
 from .kernels import nudge_holds, turning_points
 
-__all__ = ["LoopData", "WorkbenchDataError", "prepare_loop"]
+__all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "white_noise_std"]
 
 #: Fewest segments a record must give (training plus held-out).
 MIN_SEGMENTS = 6
 #: Fewest samples a record must have.
 MIN_SAMPLES = 200
+#: An OP reversal smaller than this many OP noise standard deviations is
+#: noise, not a reversal of the valve's travel [-].
+NOISE_REVERSAL = 6.0
 
 
 class WorkbenchDataError(ValueError):
     """Data the workbench cannot model; the message is one line."""
+
+
+def white_noise_std(x) -> float:
+    """Standard deviation of the white noise on a sampled, possibly compressed, signal.
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+        Uniformly sampled signal; NaN where missing [unit of x].
+
+    Returns
+    -------
+    float
+        Noise standard deviation [unit of x]; 0 for a noise-free signal.
+
+    Notes
+    -----
+    Each stored point is compared with the straight line through its two
+    neighbours; for white noise of standard deviation ``sigma`` on a signal
+    that is locally straight the difference has the standard deviation
+    ``sigma sqrt(1 + w1**2 + w2**2)`` (``w1 + w2 = 1``, the weights of the
+    neighbours), and ``sigma`` is 1.4826 times the median absolute
+    normalised difference. The stored points are the samples where the
+    second difference is not zero: every sample of a raw record, the kept
+    points of a record compressed by a historian and read back by linear
+    interpolation (whose second differences are zero between them, so a
+    plain second-difference estimate reads no noise at all), or the steps
+    of a held one. Curvature of the signal between neighbours adds to the
+    estimate; it is small where the signal is sampled several times per
+    change of slope. An exception dead band biases the kept values towards
+    the direction of travel (the first sample beyond the band is kept), so
+    the estimate of a heavily compressed record is approximate.
+    """
+    y = np.asarray(x, dtype=float)
+    y = y[np.isfinite(y)]
+    if y.size < 5:
+        return 0.0
+    d2 = np.diff(y, 2)
+    tiny = 1e-12 * max(float(np.max(np.abs(y))), 1.0)
+    knots = np.r_[0, np.flatnonzero(np.abs(d2) > tiny) + 1, y.size - 1]
+    knots = np.unique(knots)
+    if knots.size < 5:
+        return 0.0
+    t = knots.astype(float)
+    v = y[knots]
+    w2 = (t[1:-1] - t[:-2]) / (t[2:] - t[:-2])
+    w1 = 1.0 - w2
+    r = (v[1:-1] - (w1 * v[:-2] + w2 * v[2:])) / np.sqrt(1.0 + w1 ** 2 + w2 ** 2)
+    return float(1.4826 * np.median(np.abs(r - np.median(r))))
 
 
 def _nan_fill(x):
@@ -79,6 +131,9 @@ class LoopData:
     held_fraction : float
         Fraction of samples where the OP equals the previous sample: held or
         compressed data (false rests for the Kano model).
+    op_noise : float
+        Standard deviation of the OP's white noise (:func:`white_noise_std`)
+        [OP unit]; 0 for a noise-free OP.
     name : str
         Label of the record (file name) for reports.
     reinit : {'fit', 'measured'}
@@ -103,6 +158,7 @@ class LoopData:
     reversals: np.ndarray
     reversal_sign: np.ndarray
     held_fraction: float
+    op_noise: float = 0.0
     name: str = ""
     reinit: str = "fit"
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
@@ -132,6 +188,31 @@ class LoopData:
             eps = 1e-9 * max(float(np.ptp(self.op)), 1.0)
             self._cache[key] = nudge_holds(self.op, self.hold_run, eps)
         return self._cache[key]
+
+    @property
+    def noise_band(self) -> float:
+        """Noise band of a sticky valve's actuator: :data:`NOISE_REVERSAL`
+        times :attr:`op_noise` [OP unit].
+
+        Notes
+        -----
+        Kano's valve sticks at every reversal of its input, so a model driven
+        by a noisy OP sticks at every noise reversal, needs its whole stick
+        band to move again and misses the slips of the real valve; a fit then
+        settles on a narrow band without a slip jump. A real actuator (a
+        pneumatic diaphragm behind a positioner) does not reverse on
+        controller noise, so the fitted valve takes a fall of the OP by no
+        more than this band from its running extreme for noise
+        (:func:`valvediag.valves.valve_step`). A white noise dips below the
+        running maximum of a slow ramp by several standard deviations now and
+        then; six keep a day of samples free of false reversals, while real
+        reversals of a valve's travel (about its band) are much larger. A
+        reversal smaller than the band, if real, is not modelled. Whether a
+        valve reverses on noise is a property of its actuator: a stiction fit
+        tries this band and none, and keeps the one that fits better
+        (:meth:`valvediag.workbench.LoopModel.fit`).
+        """
+        return NOISE_REVERSAL * self.op_noise
 
     @property
     def n(self) -> int:
@@ -277,9 +358,7 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     if not rng > 0:
         raise WorkbenchDataError("the OP never moves: nothing to explain the PV with")
     dop = np.diff(op[oko])
-    # OP noise: robust scale of the second difference
-    d2 = np.diff(dop)
-    noise = 1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0) if d2.size else 0.0
+    noise = white_noise_std(op_raw)
     delta = max(0.05 * rng, 4.0 * noise)
     idx, sgn, conf = turning_points(op, delta)
     # the first extreme only fixes the direction: the start of the record
@@ -340,4 +419,5 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     return LoopData(t=t, pv=pv, op=op, sp=sp, sample_time=h, horizon=H, period=period,
                     burn_in=burn, seg_start=starts.astype(np.int64), seg_end=ends.astype(np.int64),
                     seg_set=sets, band_max=band_max, op_delta=float(delta), reversals=rev,
-                    reversal_sign=rsg, held_fraction=held, name=str(name), reinit=reinit)
+                    reversal_sign=rsg, held_fraction=held, op_noise=float(noise), name=str(name),
+                    reinit=reinit)

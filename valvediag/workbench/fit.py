@@ -56,6 +56,10 @@ class Theta:
         with the residual force ``fd + phase J`` [-]. It never forgets it
         (each slip leaves a force ``fd``, so the input points where it
         slips stay on a grid of step ``J``), so it is fitted.
+    band : float
+        Noise band of a Kano valve's actuator [OP unit]: a fall of the OP
+        within it is not a reversal (:func:`valvediag.valves.valve_step`).
+        Not searched: each fit holds it (see :class:`Problem`).
     """
 
     DB: float = 0.0
@@ -67,6 +71,7 @@ class Theta:
     lag: float = 0.0
     tau: float = 1.0
     phase: float = 0.0
+    band: float = 0.0
 
     def replace(self, **kw) -> "Theta":
         """Copy with some fields changed.
@@ -136,10 +141,13 @@ class Problem:
         tolerance when more than :data:`HELD_FRACTION` of the OP samples
         repeat the previous one (held or compressed data): runs of up to
         ``data.hold_run`` repeated samples are not rests.
+    noise_band : float
+        Noise band of the Kano valve's actuator [OP unit], the
+        :attr:`Theta.band` of the search's start (ignored by other valves).
     """
 
     def __init__(self, data: LoopData, effects, process_type="integrating", drift_knots=3,
-                 valve_model="auto"):
+                 valve_model="auto", noise_band=0.0):
         if process_type not in PROCESS_TYPES:
             raise ValueError(f"process_type must be one of {PROCESS_TYPES}, not {process_type!r}")
         self.data = data
@@ -148,6 +156,7 @@ class Problem:
         self.drift_knots = int(drift_knots)
         self.rest_tolerance = 0
         self.u = data.op
+        self.noise_band = 0.0
         if "stiction" in self.effects:
             vm = valve_model
             if vm == "auto":
@@ -155,6 +164,7 @@ class Problem:
                 if data.held_fraction > HELD_FRACTION:
                     self.rest_tolerance = data.hold_run
                     self.u = data.op_nudged()
+            self.noise_band = float(noise_band)
             if vm not in ("kano", "he"):
                 raise ValueError(f"valve_model must be 'auto', 'kano' or 'he', not {valve_model!r}")
             self.vcode = KANO if vm == "kano" else HE
@@ -290,7 +300,8 @@ class Problem:
         hi = theta.sat_high if sat else np.inf
         delay = theta.delay if "dead_time" in self.effects else 0.0
         us0 = p1 + (theta.phase % 1.0) * theta.J if self.vcode == HE else 0.0
-        return np.array([p0, p1, lo, hi, delay, *self.matrices(theta), us0])
+        band = theta.band if self.vcode == KANO else 0.0
+        return np.array([p0, p1, lo, hi, delay, *self.matrices(theta), us0, band])
 
     def score(self, thetas) -> np.ndarray:
         """Score candidates; rows ``[sse_train, sse_heldout, gain, coef...]``.
@@ -327,8 +338,8 @@ class Problem:
         n = d.n
         row = self.row(theta)
         x, xd, z, r = (np.empty(n) for _ in range(4))
-        kernels.simulate_chain(self.u, self.vcode, row[0], row[1], row[11], row[2], row[3], row[4],
-                               *row[5:11], x, xd, z, r)
+        kernels.simulate_chain(self.u, self.vcode, row[0], row[1], row[12], row[11], row[2], row[3],
+                               row[4], *row[5:11], x, xd, z, r)
         st = self.setup(theta)
         qa = st["qa"]
         Pr = self.project(r, qa)
@@ -543,7 +554,8 @@ def initial_theta(prob: Problem) -> Theta:
     P = _period(d)
     return Theta(DB=0.3 * d.band_max, S=0.3 * d.band_max, J=0.15 * d.band_max,
                  sat_low=-math.inf, sat_high=math.inf, delay=0.0,
-                 lag=float(max(0.05 * P, h)), tau=float(max(P / 4, 2 * h)))
+                 lag=float(max(0.05 * P, h)), tau=float(max(P / 4, 2 * h)),
+                 band=prob.noise_band)
 
 
 def _distinct_starts(cands, scores, k):

@@ -27,16 +27,16 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..valves import HE, _valve_init, _valve_step
+from ..valves import HE, valve_init, valve_step
 
-__all__ = ["simulate_chain", "score_batch"]
+__all__ = ["simulate_chain", "score_batch", "turning_points", "nudge_holds"]
 
 
 @numba.njit(cache=True, inline="always")
-def _chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out, x_out,
+def _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out, x_out,
            xd_out, z_out, keep):
     n = u.shape[0]
-    x, up, d, stuck, us, cause = _valve_init(vcode, u[0], u[0])
+    x, up, d, stuck, us, cause, ue = valve_init(vcode, u[0], u[0])
     if vcode == HE:
         # He's valve keeps the phase of its stick-slip steps for ever: its
         # initial residual force is a parameter (|us0| <= fs: at rest)
@@ -57,7 +57,8 @@ def _chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_o
     z = x0
     r = 0.0
     for k in range(n):
-        x, up, d, stuck, us, cause = _valve_step(vcode, p0, p1, u[k], x, up, d, stuck, us, cause)
+        x, up, d, stuck, us, cause, ue = valve_step(vcode, p0, p1, band, u[k], x, up, d, stuck, us,
+                                                    cause, ue)
         xs = min(max(x, lo), hi)
         buf[w] = xs
         xd = (1.0 - fr) * buf[ia] + fr * buf[ib] if fr > 0.0 else buf[ia]
@@ -75,7 +76,7 @@ def _chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_o
 
 
 @numba.njit(cache=True, nogil=True)
-def simulate_chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1,
+def simulate_chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1,
                    x_out, xd_out, z_out, r_out):
     """Run the chain on one OP record, keeping every intermediate signal.
 
@@ -83,15 +84,16 @@ def simulate_chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0,
     interpolates linearly between samples, which is exact for the integral
     of a held input). ``r_out[k]`` is the unit-gain plant response at sample
     ``k``, driven by the delayed, lagged valve positions before ``k``."""
-    _chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out, x_out,
+    _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out, x_out,
            xd_out, z_out, True)
 
 
 @numba.njit(cache=True, inline="always")
-def _chain_response(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out):
+def _chain_response(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1,
+                    r_out):
     """Unit-gain plant response of the chain only (the sequential part)."""
-    _chain(u, vcode, p0, p1, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out, r_out, r_out,
-           r_out, False)
+    _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out, r_out,
+           r_out, r_out, False)
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -99,8 +101,8 @@ def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, qW, anchored
                G2, Ginv, GinvWy, out, r):
     p = WT.shape[1]
     ns = seg_start.shape[0]
-    _chain_response(u, vcode, P[i, 0], P[i, 1], P[i, 11], P[i, 2], P[i, 3], P[i, 4], P[i, 5],
-                    P[i, 6], P[i, 7], P[i, 8], P[i, 9], P[i, 10], r)
+    _chain_response(u, vcode, P[i, 0], P[i, 1], P[i, 12], P[i, 11], P[i, 2], P[i, 3], P[i, 4],
+                    P[i, 5], P[i, 6], P[i, 7], P[i, 8], P[i, 9], P[i, 10], r)
     integ = qv.shape[0] > 1 and qv[1] == 1.0
     # inner products of the projected response, per set (0 train, 1 held-out)
     rr = np.zeros(2)
@@ -208,8 +210,8 @@ def score_serial(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, qW, anchored,
     ----------
     u : (n,) OP
     vcode : int, valve model code
-    P : (m, 12) candidates: p0, p1, lo, hi, delay [samples], f00, f01, f10, f11, g0, g1,
-        us0 (initial residual force of He's valve)
+    P : (m, 13) candidates: p0, p1, lo, hi, delay [samples], f00, f01, f10, f11, g0, g1,
+        us0 (initial residual force of He's valve), band (noise band of a Kano valve)
     seg_start, seg_end : (ns,) int64 segment bounds [start, end)
     seg_set : (ns,) int64, 0 training, 1 held-out, -1 unused
     qv : (Lmax,) free response of the plant from a unit initial state,
@@ -303,3 +305,4 @@ def nudge_holds(u, max_run, eps):
                 out[i] = out[i - 1] + d * eps
         k = j
     return out
+

@@ -136,7 +136,7 @@ class LoopModel:
         ModelFit
         """
         vm = self.valve_model if "stiction" in self.effects else "kano"
-        prob = Problem(data, self.effects, self.process_type, self.drift_knots, vm)
+        prob = Problem(data, self.effects, self.process_type, self.drift_knots, vm, theta.band)
         return _result(self, prob, theta)
 
     def fit(self, data: LoopData, *, start=None) -> "ModelFit":
@@ -156,6 +156,11 @@ class LoopModel:
         ModelFit
         """
         vms = (self.valve_model,) if "stiction" in self.effects else ("kano",)
+        # a sticky valve's actuator may or may not reverse on the OP's noise:
+        # both are fitted and the data choose (LoopData.noise_band)
+        bands = (0.0,)
+        if "stiction" in self.effects and data.noise_band > 0:
+            bands = (data.noise_band, 0.0)
         th0 = None
         if isinstance(start, ModelFit):
             th0 = start.theta
@@ -165,11 +170,12 @@ class LoopModel:
             th0 = start
         best = None
         for vm in vms:
-            prob = Problem(data, self.effects, self.process_type, self.drift_knots, vm)
-            th = search(prob, th0)
-            sse = float(prob.score([th])[0, 0])
-            if best is None or sse < best[2]:
-                best = (prob, th, sse)
+            for band in bands:
+                prob = Problem(data, self.effects, self.process_type, self.drift_knots, vm, band)
+                th = search(prob, None if th0 is None else th0.replace(band=band))
+                sse = float(prob.score([th])[0, 0])
+                if best is None or sse < best[2]:
+                    best = (prob, th, sse)
         prob, th, _ = best
         return _result(self, prob, th)
 
@@ -450,6 +456,8 @@ def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
         derived["valve_model"] = prob.valve_model
         if prob.rest_tolerance:
             derived["rest_tolerance"] = int(prob.rest_tolerance)
+        if prob.vcode == KANO:
+            derived["noise_band"] = float(th.band)
     g = ev["gain"]
     if "bias" in eff:
         params["bias"] = lin["bias"]

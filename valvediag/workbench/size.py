@@ -10,14 +10,78 @@ import numpy as np
 from .data import WorkbenchDataError, prepare_loop
 from .model import LoopModel
 
-__all__ = ["estimate_valve_size", "SIZE_EFFECTS"]
+__all__ = ["estimate_valve_size", "size_window", "SIZE_EFFECTS", "SIZE_MAX_SAMPLES", "SIZE_MAX_CYCLES",
+           "SIZE_SAMPLES_PER_PERIOD"]
 
 #: Effects fitted besides the valve: a load offset and slow drift are in
 #: almost every historian record, and a dead time is confounded with the
 #: band width if left out.
 SIZE_EFFECTS = ("dead_time", "bias", "drift")
+#: Effects of :data:`SIZE_EFFECTS` kept only when they earn their place: a
+#: dead time trades off against the band along the OP's ramps.
+SIZE_OPTIONAL = ("dead_time",)
+#: An optional effect is kept when it lowers the held-out RMSE by more than
+#: this fraction [-].
+SIZE_OPTIONAL_GAIN = 0.03
+
+#: Most samples (the latest of the record) fitted for a fault's size [-].
+SIZE_MAX_SAMPLES = 43_200
+#: Most oscillation periods (the latest of the record) fitted for a fault's size [-]:
+#: more cycles than this barely change the size but cost time in proportion.
+SIZE_MAX_CYCLES = 100.0
+#: A record finer than this many samples per period is subsampled (every k-th
+#: sample) for the size fit [samples per period].
+SIZE_SAMPLES_PER_PERIOD = 120.0
+
+#: A stick band ``S`` fitted with a slip jump below this share of it has no
+#: jump to speak of [-].
+NO_JUMP = 0.2
+#: Above this share of interpolated (or held) samples the OP is compressed [-].
+COMPRESSED_SHARE = 0.3
 
 _FAULTS = {"stiction": "stiction", "backlash": "deadband", "deadband": "deadband"}
+
+
+def size_window(n: int, sample_time: float, period: float = math.nan) -> tuple[int, int]:
+    """The part of a record that a size fit reads: its latest samples, subsampled.
+
+    Parameters
+    ----------
+    n : int
+        Samples in the record.
+    sample_time : float
+        [s]
+    period : float, optional
+        Oscillation period [s]. Without it (NaN) only :data:`SIZE_MAX_SAMPLES`
+        limits the record and it is not subsampled.
+
+    Returns
+    -------
+    start, step : int
+        Fit ``x[start::step]`` (sample time ``step * sample_time``); the
+        subsampled record ends at the record's last sample.
+
+    Notes
+    -----
+    The fit's cost grows with the samples times the model evaluations
+    (about a thousand), so the record is limited to the latest
+    :data:`SIZE_MAX_CYCLES` periods and a record with more than
+    :data:`SIZE_SAMPLES_PER_PERIOD` samples per period is subsampled by the
+    integer factor that brings it to at least that many. On the 100-loop
+    synthetic plant (1 s, 24 h) this cut the work about fourfold and left the
+    median ratio of the size to the simulated one at 0.84 (0.85 with the
+    whole episode) on the sizes of confidence >= 0.8. A dead time shorter
+    than ``step * sample_time`` is still fitted (it is fractional).
+    """
+    h = float(sample_time)
+    keep = SIZE_MAX_SAMPLES
+    k = 1
+    if math.isfinite(period) and period > 0 and h > 0:
+        keep = min(keep, int(math.ceil(SIZE_MAX_CYCLES * period / h)))
+        k = max(1, int(period / h // SIZE_SAMPLES_PER_PERIOD))
+    a = max(0, n - keep)
+    a += (n - 1 - a) % k          # the subsampled record ends at the last sample
+    return a, k
 
 
 def estimate_valve_size(pv, op, sample_time, fault, process_type="integrating", *, sp=None,
@@ -61,8 +125,21 @@ def estimate_valve_size(pv, op, sample_time, fault, process_type="integrating", 
     held-out blocks (``fit_pct / 100``) and how much the valve fault itself
     improves the held-out error over the same model with a linear valve
     (full credit from a 30 % fall). A size at the edge of the searched range
-    (larger than the OP swings) halves it. Sizes are in the unit of the OP
-    (not clipped to 0-100 %). Cost: a few seconds for a day at 1 s.
+    (larger than the OP swings) halves it, and so does a stick band fitted
+    without a slip jump (``J < NO_JUMP S``: the record then shows a dead
+    band, which the reason says); an OP stored compressed lowers it by a
+    fifth. Sizes are in the unit of the OP (not clipped to 0-100 %). Cost: a
+    few seconds for a day at 1 s.
+
+    The fitted valve takes a fall of the OP within its noise band for noise,
+    not a reversal (:attr:`LoopData.noise_band`), and a dead time is kept
+    only where it lowers the held-out error (:func:`_parsimonious_fit`).
+    On the sizing benchmark (``benchmarks/bench_sizing.py``: integrating
+    loops, S 1-6 %, J/S 0.1-1, DB 1-6 %, noise 0.5-3 %, 1-10 s) the median
+    error of S, J and DB is 5, 15 and 4 % on records storing every sample,
+    and 21, 49 and 34 % (all too small) where the OP is stored by exception:
+    the compression cuts the OP's reversals, where the valve's band starts.
+    Relative errors of J are large where J is small (J/S = 0.1).
 
     References
     ----------
@@ -85,9 +162,9 @@ def estimate_valve_size(pv, op, sample_time, fault, process_type="integrating", 
     except WorkbenchDataError as exc:
         out["reason"] = str(exc)
         return out
-    model = LoopModel((valve,) + tuple(effects), process_type)
-    fit = model.fit(data)
-    lin = LoopModel(tuple(effects), process_type).fit(data)
+    fit, effects = _parsimonious_fit(data, valve, tuple(effects), process_type)
+    out["model"] = "+".join((valve,) + effects)
+    lin = LoopModel(effects, process_type).fit(data)
     for k in keys:
         out[k] = float(fit.params[k])
     out["fit_pct"] = float(fit.fit_pct)
@@ -99,13 +176,61 @@ def estimate_valve_size(pv, op, sample_time, fault, process_type="integrating", 
     gain = 1.0 - fit.heldout_rmse / lin.heldout_rmse if lin.heldout_rmse > 0 else 0.0
     conf = float(np.clip(fit.fit_pct / 100.0, 0, 1) * np.clip(gain / 0.3, 0, 1))
     band = out[keys[0]]
-    edge = band >= 0.97 * data.band_max
-    if edge:
-        conf *= 0.5
-    out["confidence"] = round(conf, 2)
     why = [f"held-out fit {fit.fit_pct:.0f} %",
            f"the {valve} lowers the held-out error by {100 * gain:.0f} % against a linear valve"]
-    if edge:
+    if band >= 0.97 * data.band_max:
+        conf *= 0.5
         why.append("the size is at the edge of the range searched")
+    if valve == "stiction" and not out["J"] >= NO_JUMP * out["S"]:
+        conf *= 0.5
+        why.append(f"no slip jump found (J = {out['J']:.2g}, under {NO_JUMP:.0%} of S): on this "
+                   "record the valve moves as a dead band of width S would, which a stiction "
+                   "verdict does not explain")
+    interpolated = _interpolated_share(data.op)
+    if interpolated > COMPRESSED_SHARE:
+        conf *= 0.8
+        why.append(f"the OP is stored compressed ({100 * interpolated:.0f} % of its samples "
+                   "interpolated): its reversals are cut, and the band reads small by up to a "
+                   "third")
+    out["confidence"] = round(conf, 2)
     out["reason"] = "; ".join(why)
     return out
+
+
+def _parsimonious_fit(data, valve: str, effects: tuple, process_type: str):
+    """Fit the valve with the required effects, then add each optional one
+    (:data:`SIZE_OPTIONAL`) only where it lowers the held-out error by more
+    than :data:`SIZE_OPTIONAL_GAIN`.
+
+    In a steady limit cycle the OP ramps at a nearly constant rate, so a
+    dead time ``theta`` shifts the valve's motion as a band wider by
+    ``rate x theta`` would: the record fixes their sum, not each. A dead
+    time that the data do not need then drifts along that valley and takes
+    a share of the band (a sticky or loose valve sized 20-30 % small). The
+    simpler model is kept unless the dead time pays for itself on the
+    held-out blocks, where set-point steps, load changes or cycles of
+    different rates tell the two apart.
+    """
+    opt = tuple(e for e in effects if e in SIZE_OPTIONAL)
+    base = tuple(e for e in effects if e not in SIZE_OPTIONAL)
+    fit = LoopModel((valve,) + base, process_type).fit(data)
+    for e in opt:
+        model = LoopModel((valve,) + base + (e,), process_type)
+        # from the grid, and from the simpler fit: started there the search may
+        # stay at a band just below the training blocks' smallest slip, which
+        # a held-out half-cycle misses; the fit that predicts better is kept
+        cand = min((model.fit(data), model.fit(data, start=fit)), key=lambda f: f.heldout_rmse)
+        if cand.heldout_rmse < (1.0 - SIZE_OPTIONAL_GAIN) * fit.heldout_rmse:
+            fit, base = cand, base + (e,)
+    return fit, tuple(x for x in effects if x in base)
+
+
+def _interpolated_share(x) -> float:
+    """Share of samples on a straight line between their neighbours (or held):
+    what a historian's compression leaves, read back by interpolation [-]."""
+    x = np.asarray(x, dtype=float)
+    if x.size < 3:
+        return 0.0
+    d2 = np.abs(np.diff(x, 2))
+    tiny = 1e-9 * max(float(np.nanmax(np.abs(x))), 1.0)
+    return float(np.mean(d2 <= tiny))
