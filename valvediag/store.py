@@ -34,12 +34,14 @@ import functools
 import json
 import math
 import os
+import threading
 import uuid
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import duckdb
 import polars as pl
+import pyarrow  # noqa: F401 - imported once here, not first by DuckDB in several threads at once
 
 from .registry import LoopSpec
 
@@ -97,6 +99,9 @@ def _sorted_by_key(samples: pl.DataFrame) -> bool:
     prev_tag, prev_ts = tag.shift(), ts.shift()
     ok = (tag > prev_tag) | ((tag == prev_tag) & (ts >= prev_ts))
     return bool(samples.select(ok.slice(1).all()).item())
+
+
+_CONNECT_GUARD = threading.Lock()
 
 
 class StoreLockedError(RuntimeError):
@@ -205,14 +210,20 @@ class Store:
     def __init__(self, path: str | os.PathLike = ":memory:", *, read_only: bool = False):
         self.path = os.fspath(path)
         try:
-            self.con = duckdb.connect(self.path, read_only=read_only)
+            # one connect at a time per process: threads that open the same file at
+            # once share DuckDB's database instance, and one of them may query it
+            # before the Python table functions (python_arrow_scan, which scans a
+            # registered polars frame) are set up on it (seen as a CatalogException
+            # in a scan's analysis threads)
+            with _CONNECT_GUARD:
+                self.con = duckdb.connect(self.path, read_only=read_only)
+                self.con.execute("SET TimeZone = 'UTC'")
         except duckdb.IOException as exc:
             first = " ".join(str(exc).split())
             if "lock" in first.lower():
                 raise StoreLockedError(f"{self.path}: the store is open in another process "
                                        f"(DuckDB allows one writer): {first}") from None
             raise
-        self.con.execute("SET TimeZone = 'UTC'")
         self.con.execute(f"SET memory_limit = '{MEMORY_LIMIT[1 if read_only else 0]}'")
         if not read_only:
             missing = self.con.execute(load_sql("samples_bounds_missing")).fetchall()
