@@ -1,7 +1,7 @@
 """Accuracy sweep of the one-loop classifier, both BI methods side by side.
 
 Loops drawn from the parameter ranges of Farenzena & Trierweiler (2012)
-(``valvediag.scenarios``): stiction (Kano), backlash, and linear oscillations
+(``valvediag.paper.scenarios``): stiction (Kano), backlash, and linear oscillations
 (a sinusoidal load on a well-tuned loop, or a loop tuned near its stability
 limit and rung by load noise). Each loop is simulated once (20 cycles after
 start-up) and recorded at 5, 10, 20, 50 and 100 samples per period with white
@@ -32,7 +32,7 @@ KINDS = ("stiction", "backlash", "linear")
 def _work(args):
     kind, n, seed, cycles = args
     from valvediag import classify_loop
-    from valvediag.scenarios import draw_cases, record
+    from valvediag.paper.scenarios import draw_cases, record
 
     cases = draw_cases(kind, n, seed=seed, cycles=cycles)
     from valvediag import backlash_index

@@ -3,7 +3,7 @@
 Generates a long-format export of ``--rows`` samples over ``--tags`` tags in a
 temporary directory, once as CSV (ISO 8601 text with offsets, values as text)
 and once as Parquet (native types), and ingests each into a fresh store with
-:func:`valvediag.ingest.ingest_exports`. Every tag has its own time stamps
+:func:`valvediag.store.ingest.ingest_exports`. Every tag has its own time stamps
 (millisecond jitter, as compressed exports have), so the time-stamp parser
 cannot reuse parsed values across tags: the worst case. About 0.1 % of the
 values are PI digital states.
@@ -54,8 +54,8 @@ def make_export(rows: int, tags: int, seed: int = 0) -> pl.DataFrame:
 
 def _child_ingest(path: str, db: str, force: bool) -> None:
     """Run in a child process: ingest ``path`` into ``db`` and print JSON figures."""
-    from valvediag.ingest import ingest_exports
-    from valvediag.store import Store
+    from valvediag.store.database import Store
+    from valvediag.store.ingest import ingest_exports
 
     with Store(db) as store:
         t = time.perf_counter()

@@ -6,7 +6,7 @@ second would be 259.2 million samples) in at most 5 minutes, with at most
 local Dask cluster of 2 worker processes against 1 (``valvediag scan
 --workers N``).
 
-1. **Plant** (not timed). :func:`valvediag.synthplant.synth_plant` writes a
+1. **Plant** (not timed). :func:`valvediag.synth.plant.synth_plant` writes a
    synthetic plant as Parquet exports (long, one file per 50 loops and day)
    into ``--plant-dir`` (default ``out/bench_plant/plant-<loops>x<days>d-<ts>s``
    in the repository, git-ignored). A finished plant is marked by
@@ -292,7 +292,7 @@ def _ensure_plant(plant_dir: Path, loops: int, days: float, st: float, seed: int
             return have
         print(f"plant: {plant_dir} holds another plant; regenerating", flush=True)
     marker.unlink(missing_ok=True)
-    from valvediag.synthplant import synth_plant
+    from valvediag.synth.plant import synth_plant
 
     print(f"plant: generating {loops} loops x {days:g} d at {st:g} s into {plant_dir} "
           f"(not timed) ...", flush=True)

@@ -8,7 +8,7 @@ action up to the flagged count, so every flagged loop carries real plot data
 store holds one earlier run of the same plant, so the history across runs is
 read and compared for every loop.
 
-Timed: :func:`valvediag.outputs.write_outputs` (history query, work orders,
+Timed: :func:`valvediag.report.outputs.write_outputs` (history query, work orders,
 ``verdicts.json`` and the HTML report with its figures). Printed: seconds,
 report size [MB], figures, workers, ``os.cpu_count()``.
 
@@ -34,19 +34,21 @@ from pathlib import Path
 os.environ.setdefault("MPLBACKEND", "Agg")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from valvediag.outputs import write_outputs  # noqa: E402
-from valvediag.registry import read_loops_csv  # noqa: E402
-from valvediag.scan import (ScanConfig, analyse_loop, load_loop_frames, persist_results,  # noqa: E402
-                            plan_loops, rank_results)
-from valvediag.store import Store  # noqa: E402
-from valvediag.synthplant import synth_plant  # noqa: E402
+from valvediag.io.registry import read_loops_csv  # noqa: E402
+from valvediag.report.outputs import write_outputs  # noqa: E402
+from valvediag.scan.loop import analyse_loop, load_loop_frames
+from valvediag.scan.plan import plan_loops
+from valvediag.scan.plant import persist_results, rank_results
+from valvediag.scan.types import ScanConfig
+from valvediag.store.database import Store  # noqa: E402
+from valvediag.synth.plant import synth_plant  # noqa: E402
 
 BASE_LOOPS, DAYS, SAMPLE_TIME, SEED = 24, 1.0, 5.0, 7
 
 
 def base_results(work: Path):
     """Scan a small synthetic plant; return its results (with plot data)."""
-    from valvediag.ingest import ingest_exports
+    from valvediag.store.ingest import ingest_exports
 
     plant = work / "plant"
     synth_plant(BASE_LOOPS, DAYS, SAMPLE_TIME, plant, seed=SEED)

@@ -16,7 +16,7 @@ import time
 
 
 def timed_run(method: str) -> tuple[float, dict]:
-    from valvediag.paper import reproduce_paper
+    from valvediag.paper.tables import reproduce_paper
 
     t0 = time.perf_counter()
     res = reproduce_paper(method)

@@ -1,9 +1,9 @@
 """Benchmark: plant-scan throughput (loops/s) for one-day loops at 1 s and at 10 s.
 
-For each sampling rate a synthetic plant (:func:`valvediag.synthplant.synth_plant`,
+For each sampling rate a synthetic plant (:func:`valvediag.synth.plant.synth_plant`,
 one day, seed 1) is written to a temporary directory. A child process then
 ingests its exports into a fresh DuckDB store and scans every loop the way
-:func:`valvediag.scan.run_scan` does, timing separately
+:func:`valvediag.scan.run.run_scan` does, timing separately
 
 * the ingest (CSV -> DuckDB),
 * reading each loop's window from the store (``load_loop_frames``),
@@ -41,8 +41,8 @@ def _peak_mb() -> float:
 
 def _child_ingest(plant_dir: str, db: str) -> None:
     """Ingest one plant into a fresh store; print JSON figures."""
-    from valvediag.ingest import ingest_exports
-    from valvediag.store import Store
+    from valvediag.store.database import Store
+    from valvediag.store.ingest import ingest_exports
 
     with Store(db) as store:
         t = time.perf_counter()
@@ -55,9 +55,11 @@ def _child_ingest(plant_dir: str, db: str) -> None:
 
 def _child_scan(plant_dir: str, db: str) -> None:
     """Scan every loop of an ingested plant, one at a time as run_scan does; print JSON."""
-    from valvediag.registry import read_loops_csv
-    from valvediag.scan import ScanConfig, analyse_loop, load_loop_frames, plan_loops
-    from valvediag.store import Store
+    from valvediag.io.registry import read_loops_csv
+    from valvediag.scan.loop import analyse_loop, load_loop_frames
+    from valvediag.scan.plan import plan_loops
+    from valvediag.scan.types import ScanConfig
+    from valvediag.store.database import Store
 
     cfg = ScanConfig()
     loops, _ = read_loops_csv(Path(plant_dir) / "loops.csv")
@@ -107,7 +109,7 @@ def main(argv=None) -> None:
         (_child_ingest if mode == "ingest" else _child_scan)(plant_dir, db)
         return
 
-    from valvediag.synthplant import synth_plant
+    from valvediag.synth.plant import synth_plant
 
     print(f"cpu_count: {os.cpu_count()}")
     out = {"cpu_count": os.cpu_count(), "cases": {}}

@@ -23,7 +23,6 @@ Usage: python benchmarks/bench_sizing.py [--seed N] [--workers W]
 from __future__ import annotations
 
 import argparse
-import itertools
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -45,8 +44,8 @@ def simulate(h: float, seed: int, noise_model: str = "loop"):
     Returns a list of cases (dicts with the valve, the noise and the
     controller-rate PV and OP).
     """
-    from valvediag.closedloop import simulate_loop
-    from valvediag.paper import KC_GRID, TI_RATIO_GRID
+    from valvediag.models.closedloop import simulate_loop
+    from valvediag.paper.tables import KC_GRID, TI_RATIO_GRID
 
     rng = np.random.default_rng(seed)
     valves = [("kano", {"S": S, "J": r * S}) for S in S_VALUES for r in JS_VALUES]
@@ -95,7 +94,7 @@ def simulate(h: float, seed: int, noise_model: str = "loop"):
 
 def record(case, compressed, rng):
     """Historian record: every 2nd controller sample, optionally compressed."""
-    from valvediag.synthplant import exception_deadband, swinging_door
+    from valvediag.synth.plant import exception_deadband, swinging_door
 
     pv = case["pv"][::2].copy()
     op = case["op"][::2].copy()
@@ -111,7 +110,7 @@ def record(case, compressed, rng):
 
 
 def _period(pv, h):
-    from valvediag.oscillation import acf_period
+    from valvediag.analysis.oscillation import acf_period
 
     return float(acf_period(pv)[0]) * h
 

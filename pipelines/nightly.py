@@ -3,9 +3,9 @@ The nightly plant scan as a Prefect flow: ``nightly-scan``.
 
 The flow only orchestrates; every step is a :mod:`valvediag` function::
 
-    (scan lock)     valvediag.scanlock.ScanLock: one scan per store, held by the flow process
-    read-registry   valvediag.registry.read_loops_csv
-    ingest          Store.abort_stale_runs, valvediag.ingest.ingest_exports
+    (scan lock)     valvediag.store.lock.ScanLock: one scan per store, held by the flow process
+    read-registry   valvediag.io.registry.read_loops_csv
+    ingest          Store.abort_stale_runs, valvediag.store.ingest.ingest_exports
                     (+ Store.replace_loops)                                   retries 2
     plan            valvediag.scan.plan_loops (+ Store.start_run: status 'running')
     analyse-loops   valvediag.scan.analyse_stored_loops: one mapped task per batch of
@@ -14,12 +14,12 @@ The flow only orchestrates; every step is a :mod:`valvediag` function::
                     ProcessPoolTaskRunner, ``processes``, default one per core; threads
                     of the flow process for a handful of loops), or, with ``workers``
                     or ``dask_address``:
-    export-partitions  valvediag.partition.export_partitions: each loop's window to Parquet
-    analyse-partitions valvediag.partition.load_partition_frames + analyse_loop, one task
+    export-partitions  valvediag.store.partitions.export_partitions: each loop's window to Parquet
+    analyse-partitions valvediag.store.partitions.load_partition_frames + analyse_loop, one task
                     per batch of loops on Dask (prefect-dask's DaskTaskRunner)
     rank            valvediag.scan.rank_results
     persist         valvediag.scan.persist_results: the only task that writes results
-    write-outputs   valvediag.outputs.write_outputs: verdicts.json, work_orders.csv, report.html
+    write-outputs   valvediag.report.outputs.write_outputs: verdicts.json, work_orders.csv, report.html
     artifacts       a table of the ranked loops and a markdown summary linking the report
     finish-run      Store.finish_run: 'complete' only here; 'failed' if any step after plan fails
 
@@ -47,7 +47,7 @@ stage).
 
 Faults: the flow holds the store's scan lock for the whole run, so a second
 scan on the same store waits ``wait_s`` seconds and then fails with a
-one-line :class:`~valvediag.scanlock.ScanLockedError`. A scan whose process
+one-line :class:`~valvediag.store.lock.ScanLockedError`. A scan whose process
 died (SIGKILL, crash) releases the lock with its process; the next scan
 marks its run ``aborted`` and deletes its partitions. An ingest interrupted
 midway is completed by the next one (files are recorded only once fully
@@ -70,15 +70,22 @@ from prefect.cache_policies import NO_CACHE
 from prefect.task_runners import ProcessPoolTaskRunner, ThreadPoolTaskRunner
 from prefect.utilities.annotations import quote, unmapped
 
-from valvediag.ingest import expand_paths, ingest_exports
-from valvediag.outputs import write_outputs
-from valvediag.partition import (export_partitions, load_partition_frames, partition_dir,
-                                 remove_partitions)
-from valvediag.registry import LoopSpec, read_loops_csv
-from valvediag.scan import (LoopJob, LoopResult, ScanConfig, analyse_loop, analyse_stored_loops,
-                            persist_results, plan_loops, rank_results)
-from valvediag.scanlock import ScanLock, owner_id
-from valvediag.store import VERDICTS, Store, StoreLockedError
+from valvediag.io.exports import expand_paths
+from valvediag.io.registry import LoopSpec, read_loops_csv
+from valvediag.report.outputs import write_outputs
+from valvediag.scan.loop import analyse_loop, analyse_stored_loops
+from valvediag.scan.plan import plan_loops
+from valvediag.scan.plant import persist_results, rank_results
+from valvediag.scan.types import LoopJob, LoopResult, ScanConfig
+from valvediag.store.database import VERDICTS, Store, StoreLockedError
+from valvediag.store.ingest import ingest_exports
+from valvediag.store.lock import ScanLock, owner_id
+from valvediag.store.partitions import (
+    export_partitions,
+    load_partition_frames,
+    partition_dir,
+    remove_partitions,
+)
 
 __all__ = ["nightly_scan", "progress_to", "loop_batches", "FLOW_NAME", "TABLE_ARTIFACT_KEY",
            "REPORT_ARTIFACT_KEY", "TABLE_ARTIFACT_MAX_ROWS"]
@@ -395,7 +402,7 @@ def rank(results: list[LoopResult]) -> list[LoopResult]:
 def persist(db: str, run_id: str, ranked: list[LoopResult]) -> list[str]:
     """Write verdicts and episodes (one transaction); return the loops newly faulty.
 
-    A loop is new when its verdict is a fault (:data:`valvediag.store.FAULT_VERDICTS`)
+    A loop is new when its verdict is a fault (:data:`valvediag.verdicts.FAULT_VERDICTS`)
     and it was not one in the latest complete run before this one.
     """
     with Store(db) as store:

@@ -1,4 +1,4 @@
--- Loops whose verdict in run $run_id is a fault and was not a fault in the latest complete
+-- Loops whose verdict in run $run_id is a fault (one of $faults, valvediag.verdicts.FAULT_VERDICTS) and was not a fault in the latest complete
 -- run before it (a loop absent from that run, or no earlier complete run, counts as new).
 -- Works while $run_id is still running, so the nightly flow can report it before closing.
 WITH this_run AS (
@@ -21,6 +21,6 @@ SELECT c.run_id, c.loop, c.verdict, c.confidence, c.rank, c.severity, c.bi, c.re
        p.verdict AS previous_verdict
 FROM current_verdicts AS c
 LEFT JOIN previous AS p USING (loop)
-WHERE c.verdict IN ('stiction', 'backlash', 'linear-oscillation')
-  AND (p.verdict IS NULL OR p.verdict NOT IN ('stiction', 'backlash', 'linear-oscillation'))
+WHERE list_contains($faults, c.verdict)
+  AND (p.verdict IS NULL OR NOT list_contains($faults, p.verdict))
 ORDER BY c.rank NULLS LAST, c.loop

@@ -1,4 +1,4 @@
-"""Tests of valvediag.align: uniform grid, interpolation rules, segments."""
+"""Tests of valvediag.analysis.align: uniform grid, interpolation rules, segments."""
 from __future__ import annotations
 
 import datetime as dt
@@ -9,7 +9,7 @@ import polars as pl
 import pytest
 from hypothesis import given, settings
 
-from valvediag.align import align_loop, contiguous_segments, median_spacing
+from valvediag.analysis.align import align_loop, contiguous_segments, median_spacing
 
 UTC = dt.timezone.utc
 T0 = dt.datetime(2024, 1, 1, tzinfo=UTC)
@@ -165,7 +165,7 @@ def test_valid_points_lie_between_neighbouring_good_samples(steps):
 # ------------------------------------------------ gaps of compressed tags
 
 def test_tag_max_gap_regular_and_compressed_by_hand():
-    from valvediag.align import tag_max_gap
+    from valvediag.analysis.align import tag_max_gap
 
     regular = np.r_[np.arange(0, 100), np.arange(400, 500)] * 1_000_000  # one 301 s gap
     assert tag_max_gap(regular, np.zeros(regular.size)) == 5.0
@@ -182,7 +182,7 @@ def test_tag_max_gap_regular_and_compressed_by_hand():
 
 
 def _compressed_sine(seconds=7200, period=300.0, dev=0.02, seed=0):
-    from valvediag.synthplant import swinging_door
+    from valvediag.synth.plant import swinging_door
 
     rng = np.random.default_rng(seed)
     t = np.arange(float(seconds))

@@ -6,10 +6,10 @@ import numba
 import numpy as np
 import pytest
 
-from valvediag.align import median_spacing
-from valvediag.bi import _fit_one
-from valvediag.linearity import mean_cycles
-from valvediag.oscillation import _periodic_fraction, resample_cycles
+from valvediag.analysis.align import median_spacing
+from valvediag.analysis.bi import _fit_one
+from valvediag.analysis.linearity import mean_cycles
+from valvediag.analysis.oscillation import _periodic_fraction, resample_cycles
 
 
 def _median_spacing_reference(ts_us):
@@ -94,7 +94,7 @@ def _fit_apices_one_model(y, ai, asg, qbs, qas, wgrid, reach, tail):
 
     Returns rss (A, W) and params (A, W, 5) = (shift, y0, m, b, c), time in
     samples relative to the apex centre: the fit of one model at a time, as
-    valvediag.bi had it before :func:`_fit_apices_both`."""
+    valvediag.analysis.bi had it before :func:`_fit_apices_both`."""
     nA = ai.size
     nW = wgrid.size
     rss = np.full((nA, nW), np.inf)
@@ -135,7 +135,7 @@ def _fit_apices_one_model(y, ai, asg, qbs, qas, wgrid, reach, tail):
 
 
 def test_both_apex_fits_at_once_equal_the_two_separate_fits():
-    from valvediag.bi import W_GRID, _fit_apices_both
+    from valvediag.analysis.bi import W_GRID, _fit_apices_both
 
     rng = np.random.default_rng(7)
     t = np.arange(3000.0)
@@ -158,7 +158,7 @@ def _block_activity_reference(y, h, period, amplitude):
     """The scan's block screen as it was written, one block at a time."""
     import math
 
-    from valvediag.scan import ACTIVE_ACF, ACTIVE_AMPLITUDE, BLOCK_PERIODS
+    from valvediag.scan.loop import ACTIVE_ACF, ACTIVE_AMPLITUDE, BLOCK_PERIODS
 
     n = y.size
     L = int(round(BLOCK_PERIODS * period / h))
@@ -189,7 +189,7 @@ def _block_activity_reference(y, h, period, amplitude):
 
 
 def test_block_screen_finds_the_runs_of_the_block_by_block_screen():
-    from valvediag.scan import _block_activity
+    from valvediag.scan.loop import _block_activity
 
     rng = np.random.default_rng(5)
     found = 0

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from valvediag import backlash_index, simulate_loop
-from valvediag.bi import NREF, THRESHOLDS, bi_verdict
+from valvediag.analysis.bi import NREF, THRESHOLDS, bi_verdict
 
 
 def triangle(t, P):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from valvediag import VERDICTS, classify_loop, simulate_loop
-from valvediag.scenarios import draw_cases, record
+from valvediag.paper.scenarios import draw_cases, record
 
 
 def _loop(valve, vp, process="integrating", noise=0.01, **kw):

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from valvediag import simulate_loop
-from valvediag.closedloop import process_matrices
+from valvediag.models.closedloop import process_matrices
 
 
 def test_process_matrices_integrator_with_lag_match_analytic():

@@ -17,9 +17,9 @@ import time
 
 import pytest
 
-from valvediag.partition import partition_root
-from valvediag.store import Store
-from valvediag.synthplant import synth_plant
+from valvediag.store.database import Store
+from valvediag.store.partitions import partition_root
+from valvediag.synth.plant import synth_plant
 
 N_LOOPS, DAYS, SAMPLE_TIME, SEED = 8, 0.125, 5.0, 11
 

@@ -21,9 +21,9 @@ import time
 import pytest
 
 from pipelines import serve
-from valvediag.registry import read_loops_csv
-from valvediag.store import VERDICTS, Store
-from valvediag.synthplant import synth_plant
+from valvediag.io.registry import read_loops_csv
+from valvediag.store.database import VERDICTS, Store
+from valvediag.synth.plant import synth_plant
 
 # at least pipelines.nightly.MIN_LOOPS_FOR_PROCESSES loops: the flow run analyses them
 # on worker processes of the process worker's flow run, as a plant's nightly run does

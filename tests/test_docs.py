@@ -6,8 +6,9 @@ import re
 
 import pytest
 
-CORE = ["valves", "closedloop", "oscillation", "bi", "linearity", "classify", "paper",
-        "scenarios", "loopfile"]
+CORE = ["models.valves", "models.closedloop", "analysis.oscillation", "analysis.bi",
+        "analysis.linearity", "analysis.classify", "paper.tables", "paper.scenarios",
+        "io.loopfile", "verdicts"]
 
 
 def _public(modname):

@@ -8,7 +8,6 @@ and the killed run must end ``aborted``, never ``complete``.
 """
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
@@ -19,9 +18,9 @@ from pathlib import Path
 
 import pytest
 
-from valvediag.scanlock import ScanLock, ScanLockedError
-from valvediag.store import Store
-from valvediag.synthplant import synth_plant
+from valvediag.store.database import Store
+from valvediag.store.lock import ScanLock, ScanLockedError
+from valvediag.synth.plant import synth_plant
 
 N_LOOPS, DAYS, SAMPLE_TIME, SEED = 8, 0.125, 5.0, 11
 TIMEOUT_S = 240
@@ -81,7 +80,7 @@ def _scan_args(plant: Path, work: Path, *extra: str) -> list[str]:
 # ahead says nothing about what is committed.)
 _SLICED_SCAN = textwrap.dedent("""
     import contextlib, sys
-    import valvediag.ingest as ig
+    import valvediag.store.ingest as ig
     from valvediag.store import Store
     _iter, _write, _transaction = ig.iter_export, ig._write_parsed, Store.transaction
     written = []
@@ -203,7 +202,7 @@ def test_two_scans_at_once_one_runs_the_other_fails_in_one_line(
 # ------------------------------------------------------------------- the lock itself
 _HOLD = textwrap.dedent("""
     import sys, time
-    from valvediag.scanlock import ScanLock
+    from valvediag.store.lock import ScanLock
     with ScanLock(sys.argv[1]):
         print("held", flush=True)
         time.sleep(float(sys.argv[2]))
@@ -238,7 +237,7 @@ def test_second_scan_waits_a_bounded_time_for_the_lock(tmp_path):
 
 _TRY = textwrap.dedent("""
     import sys
-    from valvediag.scanlock import ScanLock, ScanLockedError
+    from valvediag.store.lock import ScanLock, ScanLockedError
     try:
         ScanLock(sys.argv[1]).acquire()
         print("got it")

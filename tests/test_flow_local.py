@@ -19,11 +19,11 @@ os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 os.environ.setdefault("DO_NOT_TRACK", "1")
 
 from valvediag.cli import main  # noqa: E402
-from valvediag.outputs import VERDICT_KEYS, WORK_ORDER_COLUMNS  # noqa: E402
-from valvediag.registry import read_loops_csv  # noqa: E402
-from valvediag.scan import ACTION_VERDICTS  # noqa: E402
-from valvediag.store import VERDICTS, Store  # noqa: E402
-from valvediag.synthplant import synth_plant  # noqa: E402
+from valvediag.io.registry import read_loops_csv  # noqa: E402
+from valvediag.report.outputs import VERDICT_KEYS, WORK_ORDER_COLUMNS  # noqa: E402
+from valvediag.verdicts import ACTION_VERDICTS  # noqa: E402
+from valvediag.store.database import VERDICTS, Store  # noqa: E402
+from valvediag.synth.plant import synth_plant  # noqa: E402
 
 N_LOOPS, DAYS, SAMPLE_TIME, SEED = 8, 0.125, 10.0, 11
 CONSOLE_LEVEL = "PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL"
@@ -283,7 +283,7 @@ def test_scan_console_script_exits_2_with_one_line(tmp_path):
 
 
 def test_library_and_cli_do_not_import_prefect():
-    code = ("import sys, valvediag, valvediag.scan, valvediag.outputs, valvediag.ingest, "
+    code = ("import sys, valvediag, valvediag.scan, valvediag.report.outputs, valvediag.store.ingest, "
             "valvediag.store, valvediag.cli; valvediag.cli.build_parser(); "
             "print(sorted(m for m in sys.modules if m == 'prefect' or m.startswith('prefect.')))")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -4,10 +4,10 @@ The requirement: on random and malformed CSV and Parquet, the result is never a
 traceback. It is always a clear one-line error that names the file, or rows that
 are stored or quarantined. No good row is ever lost.
 
-The readers under test are :func:`valvediag.ingest.parse_export` /
-:func:`~valvediag.ingest.read_export` / :func:`~valvediag.ingest.ingest_exports`,
-:func:`valvediag.registry.read_loops_csv` and
-:func:`valvediag.loopfile.read_loop_csv`. The generators build each file beside
+The readers under test are :func:`valvediag.io.exports.parse_export` /
+:func:`~valvediag.io.exports.read_export` / :func:`~valvediag.store.ingest.ingest_exports`,
+:func:`valvediag.io.registry.read_loops_csv` and
+:func:`valvediag.io.loopfile.read_loop_csv`. The generators build each file beside
 an *oracle*: what the module docstrings say must happen to every line (or cell)
 of it. The oracle is written from the documented contract, not from the code:
 
@@ -42,19 +42,27 @@ import hypothesis.strategies as st
 import polars as pl
 from hypothesis import HealthCheck, example, given, settings
 
-from valvediag.ingest import (
-    DIGITAL_STATES, DUPLICATE_REASON, QUARANTINE_SCHEMA, SAMPLE_SCHEMA, ExportError,
-    ingest_exports, parse_export, read_export,
-)
 # The exact header aliases the layout detection reserves. A random wide tag name
 # that normalises to one of them is (correctly) a layout error, so the wide
 # generators avoid them; they are private, so import rather than copy them.
-from valvediag.ingest import (
-    _CONFIDENCE_NAMES, _STATUS_NAMES, _TAG_NAMES, _TIME_NAMES, _VALUE_NAMES,
+from valvediag.io.exports import (
+    _CONFIDENCE_NAMES,
+    _STATUS_NAMES,
+    _TAG_NAMES,
+    _TIME_NAMES,
+    _VALUE_NAMES,
+    DIGITAL_STATES,
+    DUPLICATE_REASON,
+    QUARANTINE_SCHEMA,
+    SAMPLE_SCHEMA,
+    ExportError,
+    parse_export,
+    read_export,
 )
-from valvediag.loopfile import LoopFileError, read_loop_csv
-from valvediag.registry import RegistryError, read_loops_csv
-from valvediag.store import Store
+from valvediag.io.loopfile import LoopFileError, read_loop_csv
+from valvediag.io.registry import RegistryError, read_loops_csv
+from valvediag.store.database import Store
+from valvediag.store.ingest import ingest_exports
 
 RESERVED = frozenset(_TIME_NAMES + _TAG_NAMES + _VALUE_NAMES + _STATUS_NAMES + _CONFIDENCE_NAMES)
 BOM = "\ufeff"

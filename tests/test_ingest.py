@@ -1,4 +1,4 @@
-"""Tests of valvediag.ingest: readers, bad input, and ingest into a real DuckDB file."""
+"""Tests of valvediag.store.ingest: readers, bad input, and ingest into a real DuckDB file."""
 from __future__ import annotations
 
 import datetime as dt
@@ -11,11 +11,17 @@ import polars as pl
 import pytest
 from hypothesis import HealthCheck, given, settings
 
-from valvediag.ingest import (
-    QUARANTINE_SCHEMA, SAMPLE_SCHEMA, ExportError, _write_parsed, expand_paths,
-    ingest_exports, iter_export, parse_export, read_export,
+from valvediag.io.exports import (
+    QUARANTINE_SCHEMA,
+    SAMPLE_SCHEMA,
+    ExportError,
+    expand_paths,
+    iter_export,
+    parse_export,
+    read_export,
 )
-from valvediag.store import Store
+from valvediag.store.database import Store
+from valvediag.store.ingest import _write_parsed, ingest_exports
 
 DATA = Path(__file__).parent / "data" / "ingest"
 UTC = dt.timezone.utc
@@ -519,8 +525,9 @@ def test_interrupted_file_is_completed_by_the_next_run(tmp_path):
 # --- fast paths must give what the general path gives -------------------------
 def _general_only(monkeypatch):
     """Force the general sort-and-dedupe path and no prefetch thread."""
-    import valvediag.ingest as ingest
-    monkeypatch.setattr(ingest, "_sorted_runs", lambda good: None)
+    import valvediag.io.exports as exports
+    import valvediag.store.ingest as ingest
+    monkeypatch.setattr(exports, "_sorted_runs", lambda good: None)
     monkeypatch.setattr(ingest, "_prefetched", lambda items: items)
 
 
@@ -607,7 +614,7 @@ def test_parse_of_blocks_out_of_tag_order_is_sorted_like_the_general_path(tmp_pa
 
 def test_an_error_while_parsing_a_later_slice_reaches_the_caller(tmp_path, monkeypatch):
     """With the parse one slice ahead in a thread, an exception is still one file's error."""
-    import valvediag.ingest as ingest
+    import valvediag.io.exports as ingest
     src = _messy_parquet(tmp_path / "m.parquet")
     real = ingest._finish
     calls = []
@@ -629,7 +636,7 @@ def test_an_error_while_parsing_a_later_slice_reaches_the_caller(tmp_path, monke
 def test_prefetch_stops_its_worker_when_the_caller_stops():
     import threading
 
-    from valvediag.ingest import _prefetched
+    from valvediag.store.ingest import _prefetched
     produced = []
 
     def items():

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from valvediag.loopfile import LoopFileError, read_loop_csv
+from valvediag.io.loopfile import LoopFileError, read_loop_csv
 
 
 def write(tmp_path, text, name="loop.csv"):

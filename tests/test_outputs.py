@@ -1,4 +1,4 @@
-"""Tests of valvediag.outputs: verdicts.json, work orders (CSV, JSON), report.html, and the
+"""Tests of valvediag.report.outputs: verdicts.json, work orders (CSV, JSON), report.html, and the
 history across runs (new, repeat, resolved) read from the store."""
 from __future__ import annotations
 
@@ -11,11 +11,17 @@ import re
 
 import pytest
 
-from valvediag.outputs import (RECOMMENDED_ACTIONS, WORK_ORDER_COLUMNS, loop_anchor,
-                               render_report, write_outputs)
 from valvediag.report.history import fault_kind, plant_history, read_history
-from valvediag.scan import Episode, LoopResult, persist_results, rank_results
-from valvediag.store import Store
+from valvediag.report.outputs import (
+    RECOMMENDED_ACTIONS,
+    WORK_ORDER_COLUMNS,
+    loop_anchor,
+    render_report,
+    write_outputs,
+)
+from valvediag.scan.plant import persist_results, rank_results
+from valvediag.scan.types import Episode, LoopResult
+from valvediag.store.database import Store
 
 UTC = dt.timezone.utc
 T0 = dt.datetime(2026, 1, 1, tzinfo=UTC)

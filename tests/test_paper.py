@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from valvediag import paper
+from valvediag.paper import tables as paper
 
 
 def test_grid_sizes_as_printed():

@@ -1,4 +1,4 @@
-"""Tests of valvediag.quality on small synthetic loops with hand-counted answers."""
+"""Tests of valvediag.analysis.quality on small synthetic loops with hand-counted answers."""
 from __future__ import annotations
 
 import datetime as dt
@@ -8,8 +8,8 @@ import numpy as np
 import polars as pl
 import pytest
 
-from valvediag.align import align_loop
-from valvediag.quality import quality_metrics
+from valvediag.analysis.align import align_loop
+from valvediag.analysis.quality import quality_metrics
 
 UTC = dt.timezone.utc
 T0 = dt.datetime(2024, 1, 1, tzinfo=UTC)

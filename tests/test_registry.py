@@ -1,4 +1,4 @@
-"""Tests of valvediag.registry (loops.csv)."""
+"""Tests of valvediag.io.registry (loops.csv)."""
 from __future__ import annotations
 
 import math
@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from valvediag.ingest import ingest_exports
-from valvediag.registry import LoopSpec, RegistryError, read_loops_csv
-from valvediag.store import Store
+from valvediag.io.registry import LoopSpec, RegistryError, read_loops_csv
+from valvediag.store.database import Store
+from valvediag.store.ingest import ingest_exports
 
 DATA = Path(__file__).parent / "data" / "ingest"
 
@@ -111,8 +111,9 @@ def test_a_registry_tag_absent_from_the_exports_is_detectable(tmp_path):
     assert missing["TIC300"] == {"op": "TIC300.OP"}  # and no PV tag at all (an issue)
 
 
-@pytest.mark.parametrize("module", ["valvediag.ingest", "valvediag.store", "valvediag.registry",
-                                    "valvediag.align", "valvediag.quality"])
+@pytest.mark.parametrize("module", ["valvediag.io.exports", "valvediag.store.ingest", "valvediag.store.database",
+                                    "valvediag.io.registry",
+                                    "valvediag.analysis.align", "valvediag.analysis.quality"])
 def test_public_functions_document_their_parameters(module):
     """Like python-control: every public callable names each parameter in its docstring."""
     import dataclasses

@@ -13,14 +13,15 @@ import polars as pl
 import pytest
 from scipy import signal
 
-from valvediag.registry import LoopSpec
+from valvediag.io.registry import LoopSpec
 from valvediag.report.explain import duration_text, explain, quality_label
 from valvediag.report.figures import loop_figure, render_loop_figures
 from valvediag.report.history import LoopHistory
 from valvediag.report.html import render_report
 from valvediag.report.svg import history_svg, sparkline_svg
-from valvediag.scan import (SPARK_BUCKETS, TREND_BUCKETS, LoopJob, LoopTrend, _reduce,
-                            analyse_loop, rank_results)
+from valvediag.scan.loop import analyse_loop
+from valvediag.scan.plant import rank_results
+from valvediag.scan.types import SPARK_BUCKETS, TREND_BUCKETS, LoopJob, _reduce
 
 UTC = dt.timezone.utc
 T0 = dt.datetime(2026, 1, 1, tzinfo=UTC)

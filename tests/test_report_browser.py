@@ -20,9 +20,10 @@ from pathlib import Path
 
 import pytest
 
-from valvediag.outputs import loop_anchor
-from valvediag.scan import ScanConfig, run_scan
-from valvediag.synthplant import synth_plant
+from valvediag.report.outputs import loop_anchor
+from valvediag.scan.run import run_scan
+from valvediag.scan.types import ScanConfig
+from valvediag.synth.plant import synth_plant
 
 ROOT = Path(__file__).resolve().parents[1]
 EVIL_LOOP = "<script>alert(1)</script>"

@@ -14,11 +14,15 @@ import polars as pl
 import pytest
 from scipy import signal
 
-from valvediag.registry import LoopSpec
-from valvediag.scan import (ACTION_VERDICTS, LoopJob, LoopResult, ScanConfig, analyse_loop,
-                            load_loop_frames, plan_loops, rank_results, run_scan, severity)
-from valvediag.store import FAULT_VERDICTS, Store
-from valvediag.synthplant import synth_plant
+from valvediag.io.registry import LoopSpec
+from valvediag.scan.loop import analyse_loop, load_loop_frames
+from valvediag.scan.plan import plan_loops
+from valvediag.scan.plant import rank_results, severity
+from valvediag.scan.run import run_scan
+from valvediag.scan.types import LoopJob, LoopResult, ScanConfig
+from valvediag.store.database import Store
+from valvediag.synth.plant import synth_plant
+from valvediag.verdicts import ACTION_VERDICTS, FAULT_VERDICTS
 
 UTC = dt.timezone.utc
 T0 = dt.datetime(2026, 1, 1, tzinfo=UTC)
@@ -245,7 +249,7 @@ def test_load_loop_frames_from_a_path_with_or_without_an_open_writer(tmp_path):
 def test_loops_read_in_one_query_equal_the_loops_read_one_by_one(tmp_path, monkeypatch):
     """fetch_loop_windows (worker processes' batches) = load_loop_frames, loop by loop:
     windows, the held set point's last sample before the window, missing tags."""
-    from valvediag.partition import fetch_loop_windows
+    from valvediag.store.partitions import fetch_loop_windows
 
     store = _store_with(tmp_path, {"A.PV": 7200, "A.OP": 7200, "A.SP": 600,
                                    "B.PV": 3600, "B.OP": 3000, "B.MODE": 5000})
@@ -266,7 +270,7 @@ def test_loops_read_in_one_query_equal_the_loops_read_one_by_one(tmp_path, monke
     assert fetch_loop_windows(store, []) == []
     store.close()
     # analyse_stored_loops reads READ_LOOPS at a time; same results, in job order
-    from valvediag import scan as scan_mod
+    from valvediag.scan import loop as scan_mod
 
     one_by_one = [analyse_loop(j, load_loop_frames(tmp_path / "s.duckdb", j)) for j in jobs]
     for read_loops in (1, 3, 10):
@@ -426,7 +430,7 @@ def test_grid_is_in_phase_with_the_pv_samples():
 
 def test_a_loop_whose_analysis_fails_gets_insufficient_data(monkeypatch):
     """An unexpected error in one loop's numerics must not stop the plant's scan."""
-    import valvediag.scan as scan_mod
+    import valvediag.scan.loop as scan_mod
 
     def boom(job, frames, config):
         raise FloatingPointError("synthetic failure")

@@ -13,9 +13,9 @@ import numpy as np
 import polars as pl
 import pytest
 
-from valvediag.ingest import ingest_exports
-from valvediag.registry import LoopSpec
-from valvediag.store import SQL_DIR, Store, StoreLockedError, load_sql
+from valvediag.io.registry import LoopSpec
+from valvediag.store.database import SQL_DIR, Store, StoreLockedError, load_sql
+from valvediag.store.ingest import ingest_exports
 
 DATA = Path(__file__).parent / "data" / "ingest"
 UTC = dt.timezone.utc
@@ -46,7 +46,7 @@ def test_schema_has_every_table_and_survives_reopen(tmp_path):
 
 
 def test_every_named_query_file_is_loadable():
-    names = sorted(p.stem for p in SQL_DIR.glob("*.sql"))
+    names = sorted(p.name[:-4] for p in SQL_DIR.iterdir() if p.name.endswith(".sql"))
     assert "schema" in names and "new_faults_of_run" in names
     for name in names:
         assert load_sql(name).strip()

@@ -1,4 +1,4 @@
-"""Tests for valvediag.synthplant: the synthetic plant generator."""
+"""Tests for valvediag.synth.plant: the synthetic plant generator."""
 from __future__ import annotations
 
 import hashlib
@@ -8,10 +8,16 @@ import numpy as np
 import polars as pl
 import pytest
 
-from valvediag import synthplant as sp
-from valvediag.synthplant import (
-    DIGITAL_STATES, EXPORT_COLUMNS, LOOPS_COLUMNS, TRUTH_COLUMNS, TRUTH_VERDICTS,
-    exception_deadband, swinging_door, synth_plant,
+from valvediag.synth import plant as sp
+from valvediag.synth.plant import (
+    DIGITAL_STATES,
+    EXPORT_COLUMNS,
+    LOOPS_COLUMNS,
+    TRUTH_COLUMNS,
+    TRUTH_VERDICTS,
+    exception_deadband,
+    swinging_door,
+    synth_plant,
 )
 
 # A small plant: 16 loops, 3 h at 2 s. Periods are then 60-720 s (>= 30 samples,
@@ -328,8 +334,8 @@ def test_formats_and_timezone(tmp_path):
 
 def test_project_readers_accept_the_plant(plant):
     """The project's own ingest and registry read the plant without complaint."""
-    ingest = pytest.importorskip("valvediag.ingest")
-    registry = pytest.importorskip("valvediag.registry")
+    ingest = pytest.importorskip("valvediag.io.exports")
+    registry = pytest.importorskip("valvediag.io.registry")
     for f in plant.exports:
         samples, quarantine = ingest.read_export(f)
         assert quarantine.height == 0, quarantine.head(3)

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from valvediag import valves
+from valvediag.models import valves
 
 UP = np.arange(0.0, 11.0)            # 0, 1, ..., 10
 DOWN = np.arange(9.0, -1.0, -1.0)    # 9, 8, ..., 0

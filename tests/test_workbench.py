@@ -8,9 +8,15 @@ import numpy as np
 import pytest
 
 from valvediag import simulate_loop
-from valvediag.closedloop import process_matrices
-from valvediag.workbench import (EFFECTS, LoopModel, WorkbenchDataError, check_effects,
-                                 estimate_valve_size, prepare_loop)
+from valvediag.models.closedloop import process_matrices
+from valvediag.workbench import (
+    EFFECTS,
+    LoopModel,
+    WorkbenchDataError,
+    check_effects,
+    estimate_valve_size,
+    prepare_loop,
+)
 from valvediag.workbench.diagnosis import event_average, valve_breakaways
 from valvediag.workbench.fit import Problem, Theta, zoh_matrices
 

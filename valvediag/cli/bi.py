@@ -4,8 +4,8 @@ from __future__ import annotations
 import json
 import math
 
-from ..classify import classify_loop
-from ..loopfile import LoopFileError, read_loop_csv
+from ..analysis.classify import classify_loop
+from ..io.loopfile import LoopFileError, read_loop_csv
 
 HELP = """\
 Classify one or more single-loop CSV files (columns timestamp,pv,op[,sp,mv];

@@ -95,7 +95,7 @@ def _num(x, nd=6):
 
 def _load(args):
     """Read FILE and prepare it; one-line errors naming the file."""
-    from ..loopfile import LoopFileError, read_loop_csv
+    from ..io.loopfile import LoopFileError, read_loop_csv
     from ..workbench import WorkbenchDataError, check_effects, prepare_loop
 
     try:

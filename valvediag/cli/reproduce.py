@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..paper import reproduce_paper
+from ..paper.tables import reproduce_paper
 from ..progress import ProgressBar
 from . import CommandError
 

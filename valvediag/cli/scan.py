@@ -95,9 +95,9 @@ def register(sub):
 
 def _check_inputs(args):
     """Validate the arguments; return ``(exports, config)`` or raise CommandError."""
-    from ..ingest import expand_paths
-    from ..registry import RegistryError, read_loops_csv
-    from ..scan import ScanConfig
+    from ..io.exports import expand_paths
+    from ..io.registry import RegistryError, read_loops_csv
+    from ..scan.types import ScanConfig
 
     if not os.path.isfile(args.loops):
         raise CommandError(f"--loops {args.loops}: no such file")
@@ -146,8 +146,8 @@ def _check_store(db: str, wait: float = 0.0) -> None:
     ``wait`` seconds) or it cannot be opened for writing."""
     import duckdb
 
-    from ..scanlock import ScanLock
-    from ..store import Store, StoreLockedError
+    from ..store.database import Store, StoreLockedError
+    from ..store.lock import ScanLock
 
     path = Path(db)
     if path.is_dir():
@@ -224,7 +224,7 @@ def run(args) -> int:
         os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "ERROR")
     from pipelines.nightly import nightly_scan, progress_to
 
-    from ..scanlock import ScanLock, ScanLockedError
+    from ..store.lock import ScanLock, ScanLockedError
 
     try:    # held around the flow (which takes it again), so a scan started at the same
         lock = ScanLock(args.db, timeout=args.wait).acquire()   # time fails here, in one line

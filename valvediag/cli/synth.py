@@ -38,7 +38,7 @@ def _positive(kind):
 
 
 def register(subparsers) -> None:
-    from ..synthplant import FORMATS
+    from ..synth.plant import FORMATS
 
     p = subparsers.add_parser(
         "synth-plant", help="write a synthetic plant: historian exports, loops.csv, truth.csv",
@@ -69,7 +69,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ..progress import ProgressBar
-    from ..synthplant import synth_plant
+    from ..synth.plant import synth_plant
 
     bar = ProgressBar("synth-plant", enabled=not (args.quiet or args.json))
     try:

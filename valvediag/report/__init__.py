@@ -12,7 +12,7 @@ The morning report of a plant scan: HTML page, figures, history across runs.
 * :mod:`~valvediag.report.browser`: open a report in headless Chromium,
   check it and take a screenshot (tests and docs).
 
-:func:`valvediag.outputs.write_outputs` writes the report with the other
+:func:`valvediag.report.outputs.write_outputs` writes the report with the other
 output files.
 """
 from .explain import ACTIONS, explain

@@ -9,10 +9,10 @@ figure (five panels) from the plot data the scan kept
   (:meth:`valvediag.scan.LoopTrend.plot`);
 * a zoom on a few cycles: for a valve fault the Backlash Index evidence,
   peaks, valleys, middle points and the measured angles
-  (:meth:`valvediag.bi.BacklashIndex.plot`); for a linear oscillation the
+  (:meth:`valvediag.analysis.bi.BacklashIndex.plot`); for a linear oscillation the
   PV and OP with the apices;
 * the phase plot of the mean cycle, OP against the implied valve position
-  (:meth:`valvediag.linearity.CycleShape.plot`);
+  (:meth:`valvediag.analysis.linearity.CycleShape.plot`);
 * for a valve fault, the Backlash Index of every half cycle against the
   verdict limits; for a linear oscillation, the mean PV cycle against a pure
   sine wave (its harmonic distortion is what makes it linear).
@@ -89,7 +89,7 @@ def _evidence_window(bres, cycles: float) -> tuple[int, int]:
 def _slice_backlash(bres, lo: int, hi: int):
     """The Backlash Index result restricted to samples ``[lo, hi)``, re-indexed from 0.
 
-    Only what :meth:`valvediag.bi.BacklashIndex.plot` draws is kept
+    Only what :meth:`valvediag.analysis.bi.BacklashIndex.plot` draws is kept
     consistent (record, apices with their angles, middle points with theirs).
     """
     import dataclasses

@@ -27,12 +27,10 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
-__all__ = ["HistoryPoint", "LoopHistory", "PlantHistory", "plant_history", "fault_kind",
-           "HEALTHY_VERDICTS"]
+from ..verdicts import HEALTHY_VERDICTS, VALVE_NONLINEARITY
 
-#: Verdicts that close an open problem.
-HEALTHY_VERDICTS = ("no-oscillation", "not-integrating")
-_ACTION = ("stiction", "backlash", "linear-oscillation", "undecided")
+__all__ = ["HistoryPoint", "LoopHistory", "PlantHistory", "plant_history", "fault_kind"]
+
 _UTC = dt.timezone.utc
 
 
@@ -44,7 +42,7 @@ def fault_kind(verdict: str) -> str | None:
     verdict : str
         A loop verdict.
     """
-    if verdict in ("stiction", "backlash", "undecided"):
+    if verdict in VALVE_NONLINEARITY:
         return "valve"
     if verdict == "linear-oscillation":
         return "oscillation"
@@ -269,7 +267,7 @@ def read_history(store, results: Sequence, *, run_id: str, started_at: dt.dateti
 
     import duckdb
 
-    from ..store import Store, StoreLockedError
+    from ..store.database import Store, StoreLockedError
 
     def compare(st: Store) -> PlantHistory:
         known = st.query("run_started", run_id=run_id)["started_at"].to_list()

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import datetime as dt
 import hashlib
+import importlib.resources
 import math
 import os
 import re
@@ -25,20 +26,27 @@ from pathlib import Path
 
 from markupsafe import Markup
 
-from .explain import ACTIONS, SHORT_ACTIONS, VERDICT_LABELS, confidence_word, duration_text, \
-    explain, quality_label, regularity_text, size_text
+from ..verdicts import ACTION_VERDICTS, RANK_ORDER, rank_position
+from .explain import (
+    ACTIONS,
+    SHORT_ACTIONS,
+    VERDICT_LABELS,
+    confidence_word,
+    duration_text,
+    explain,
+    quality_label,
+    regularity_text,
+    size_text,
+)
 from .history import PlantHistory, plant_history
 from .svg import history_svg, sparkline_svg
 
 __all__ = ["render_report", "loop_anchor", "REPORTS_DIR", "TEMPLATE"]
 
-REPORTS_DIR = Path(os.environ.get("VALVEDIAG_REPORTS_DIR",
-                                  Path(__file__).resolve().parents[2] / "reports"))
+#: The templates, CSS and script: ``reports/`` of the repository, shipped as
+#: ``valvediag.templates``.
+REPORTS_DIR = importlib.resources.files("valvediag.templates")
 TEMPLATE = "report.html.j2"
-#: Verdicts whose loops get a detailed section with figures.
-DETAIL_VERDICTS = ("stiction", "backlash", "undecided", "linear-oscillation")
-_ORDER = ("stiction", "backlash", "undecided", "linear-oscillation", "not-integrating",
-          "no-oscillation", "insufficient-data")
 _SAFE_ID = re.compile(r"[A-Za-z0-9_.\-]+")
 _UTC = dt.timezone.utc
 
@@ -95,8 +103,7 @@ def _row(r, hist, anchor: str) -> dict:
         "loop": r.loop, "anchor": anchor, "unit": r.unit or "", "description": r.description,
         "verdict": r.verdict, "verdict_label": VERDICT_LABELS.get(r.verdict, r.verdict),
         "vclass": "v-" + r.verdict, "rank": "" if r.rank is None else r.rank,
-        "rank_key": _sort_num(r.rank), "order_key": _ORDER.index(r.verdict)
-        if r.verdict in _ORDER else len(_ORDER),
+        "rank_key": _sort_num(r.rank), "order_key": rank_position(r.verdict),
         "confidence": _fmt(r.confidence, ".2f"), "confidence_key": _sort_num(r.confidence),
         "bi": _fmt(r.bi, ".2f"), "bi_key": _sort_num(r.bi),
         "period": duration_text(r.period_s), "period_key": _sort_num(r.period_s),
@@ -216,12 +223,12 @@ def render_report(results: Sequence, *, run_id: str, run_info: Mapping | None = 
     info = dict(run_info or {})
     if history is None:
         history = plant_history(results, run_id=run_id, started_at=_as_time(info.get("generated")))
-    env = jinja2.Environment(loader=jinja2.FileSystemLoader(os.fspath(REPORTS_DIR)),
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(REPORTS_DIR)),
                              autoescape=True, trim_blocks=True, lstrip_blocks=True,
                              undefined=jinja2.StrictUndefined)
     anchors = {r.loop: loop_anchor(r.loop) for r in results}
     rows = [_row(r, history.of(r.loop), anchors[r.loop]) for r in results]
-    detailed = [r for r in results if r.verdict in DETAIL_VERDICTS]
+    detailed = [r for r in results if r.verdict in ACTION_VERDICTS]
     figures = render_loop_figures([(r, f"f{k}") for k, r in enumerate(detailed)],
                                   workers=workers)
     loops = []
@@ -247,7 +254,7 @@ def render_report(results: Sequence, *, run_id: str, run_info: Mapping | None = 
                "reason": r.reason,
                "issues": [str(i) for i in (r.quality or {}).get("issues") or []],
                "problems": [str(p) for p in (r.evidence or {}).get("problems") or []]}
-              for r in results if r.verdict not in DETAIL_VERDICTS]
+              for r in results if r.verdict not in ACTION_VERDICTS]
     counts: dict[str, int] = {}
     for r in results:
         counts[r.verdict] = counts.get(r.verdict, 0) + 1
@@ -268,8 +275,8 @@ def render_report(results: Sequence, *, run_id: str, run_info: Mapping | None = 
         exports=[os.fspath(e) for e in exports], loops_csv=loops_csv,
         config=[(k, "–" if v is None else str(v)) for k, v in (info.get("config") or {}).items()],
         counts=[(v, counts[v], "v-" + v, VERDICT_LABELS.get(v, v))
-                for v in _ORDER if v in counts] +
-               [(v, n, "v-" + v, v) for v, n in counts.items() if v not in _ORDER],
+                for v in RANK_ORDER if v in counts] +
+               [(v, n, "v-" + v, v) for v, n in counts.items() if v not in RANK_ORDER],
         n_loops=len(results), n_action=n_action,
         new=[(x, anchors[x]) for x in new if x in anchors],
         repeat=[(x, anchors[x]) for x in history.with_status("repeat")],
@@ -279,7 +286,7 @@ def render_report(results: Sequence, *, run_id: str, run_info: Mapping | None = 
                   if prev else None),
         history_error=history.error, runs_compared=history.runs_compared,
         rows=rows, loops=loops, others=others,
-        verdicts=[(v, VERDICT_LABELS.get(v, v)) for v in _ORDER if v in counts],
+        verdicts=[(v, VERDICT_LABELS.get(v, v)) for v in RANK_ORDER if v in counts],
         registry_problems=[str(p) for p in info.get("registry_problems") or []],
         ingest_errors=[str(p) for p in info.get("ingest_errors") or []],
     )

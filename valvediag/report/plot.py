@@ -432,7 +432,7 @@ def _trend(ax_t: _Panel, ax_o: _Panel, result, detail, highlight):
 
 def _zoom_bi(ax: _Panel, b):
     """PV of the evidence window with peaks, valleys, middle points and measured angles."""
-    from ..bi import _ANGLE_UNIT
+    from ..analysis.bi import _ANGLE_UNIT
 
     h = b.sample_time
     pv = np.asarray(b.pv, dtype=float)

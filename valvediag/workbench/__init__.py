@@ -46,8 +46,17 @@ from .effects import EFFECT_NAMES, EFFECTS, PLANT_PARAMS, Effect, Param, check_e
 from .fit import Theta
 from .model import LoopModel, ModelFit, fit_model
 from .size import estimate_valve_size, size_window
-from .suggest import (ErrorLadder, Evidence, LadderStep, Suggestion, Suggestions, diagnose,
-                      effect_evidence, forward_select, suggest_effects)
+from .suggest import (
+                      ErrorLadder,
+                      Evidence,
+                      LadderStep,
+                      Suggestion,
+                      Suggestions,
+                      diagnose,
+                      effect_evidence,
+                      forward_select,
+                      suggest_effects,
+)
 
 __all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "Diagnosis", "WorstSegment",
            "diagnose_fit", "EFFECTS", "EFFECT_NAMES", "PLANT_PARAMS", "Effect", "Param",

@@ -203,7 +203,7 @@ class LoopData:
         pneumatic diaphragm behind a positioner) does not reverse on
         controller noise, so the fitted valve takes a fall of the OP by no
         more than this band from its running extreme for noise
-        (:func:`valvediag.valves.valve_step`). A white noise dips below the
+        (:func:`valvediag.models.valves.valve_step`). A white noise dips below the
         running maximum of a slow ramp by several standard deviations now and
         then; six keep a day of samples free of false reversals, while real
         reversals of a valve's travel (about its band) are much larger. A

@@ -20,8 +20,8 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.signal import lfilter
 
-from ..closedloop import process_matrices
-from ..valves import BACKLASH, HE, KANO, LINEAR
+from ..models.closedloop import process_matrices
+from ..models.valves import BACKLASH, HE, KANO, LINEAR
 from . import kernels
 from .data import LoopData
 from .effects import check_effects
@@ -58,7 +58,7 @@ class Theta:
         slips stay on a grid of step ``J``), so it is fitted.
     band : float
         Noise band of a Kano valve's actuator [OP unit]: a fall of the OP
-        within it is not a reversal (:func:`valvediag.valves.valve_step`).
+        within it is not a reversal (:func:`valvediag.models.valves.valve_step`).
         Not searched: each fit holds it (see :class:`Problem`).
     """
 
@@ -369,7 +369,7 @@ def zoh_matrices(process_type, lag, tau, h):
 
     Returns ``(f00, f01, f10, f11, g0, g1)`` of ``s_{k+1} = Phi s_k + Gam x_k``
     with ``s = [z, r]`` (lag output, plant output); closed forms of
-    :func:`valvediag.closedloop.process_matrices` (which they match), as that
+    :func:`valvediag.models.closedloop.process_matrices` (which they match), as that
     function's matrix exponential is too slow to call per candidate.
     """
     if lag <= 0:

@@ -12,8 +12,8 @@ The chain, per sample ``k`` (sample time ``h``)::
 
 ``Phi`` and ``Gam`` are the exact zero-order-hold matrices of the lag and the
 plant (integrator or first order) with unit gain, from
-:func:`valvediag.closedloop.process_matrices`. The valve step is the one of
-:mod:`valvediag.valves` (shared with the closed-loop simulator).
+:func:`valvediag.models.closedloop.process_matrices`. The valve step is the one of
+:mod:`valvediag.models.valves` (shared with the closed-loop simulator).
 
 The score of a candidate is the least-squares error of the PV prediction
 over re-initialised segments. The prediction is linear in the plant gain and
@@ -27,7 +27,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..valves import HE, valve_init, valve_step
+from ..models.valves import HE, valve_init, valve_step
 
 __all__ = ["simulate_chain", "score_batch", "turning_points", "nudge_holds"]
 

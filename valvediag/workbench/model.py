@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..models.valves import HE, KANO
 from .data import LoopData, _shade_heldout
 from .effects import EFFECTS, PLANT_PARAMS, check_effects
-from ..valves import HE, KANO
 from .fit import PROCESS_TYPES, Problem, Theta, search
 
 __all__ = ["LoopModel", "ModelFit", "fit_model"]

@@ -7,23 +7,23 @@ embedded as ``data:`` URIs (no external resource, nothing to inject), drawn
 with a fixed hash salt and no date, so the same data give the same bytes.
 Every text from the data (file names) is HTML-escaped by jinja2.
 
-The template is ``reports/workbench.html.j2`` next to the package; set
-``VALVEDIAG_REPORTS_DIR`` to use another directory.
+The template is ``reports/workbench.html.j2`` of the repository, installed
+with the package as ``valvediag.templates``.
 """
 from __future__ import annotations
 
 import base64
+import importlib.resources
 import io
 import math
-import os
 from pathlib import Path
 
 from .suggest import ErrorLadder
 
 __all__ = ["render_workbench_report", "write_workbench_report", "TEMPLATE", "REPORTS_DIR"]
 
-REPORTS_DIR = Path(os.environ.get("VALVEDIAG_REPORTS_DIR",
-                                  Path(__file__).resolve().parent.parent.parent / "reports"))
+#: The templates: ``reports/`` of the repository, shipped as ``valvediag.templates``.
+REPORTS_DIR = importlib.resources.files("valvediag.templates")
 TEMPLATE = "workbench.html.j2"
 
 _RC = {"svg.hashsalt": "valvediag-workbench", "svg.fonttype": "none", "font.size": 8,
@@ -138,7 +138,7 @@ def render_workbench_report(ladder: ErrorLadder, *, name: str = "", meta: dict |
     """
     import jinja2
 
-    env = jinja2.Environment(loader=jinja2.FileSystemLoader(os.fspath(REPORTS_DIR)),
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(REPORTS_DIR)),
                              autoescape=True, trim_blocks=True, lstrip_blocks=True,
                              undefined=jinja2.StrictUndefined)
     first, final = ladder.first, ladder.final

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .data import LoopData, prepare_loop
-from .diagnosis import Diagnosis, Z99, event_average, residual_ccf, valve_breakaways
+from .diagnosis import Z99, Diagnosis, event_average, residual_ccf
 from .effects import EFFECTS, check_effects
 from .model import LoopModel, ModelFit, _num
 

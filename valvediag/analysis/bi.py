@@ -64,7 +64,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from .oscillation import _apices, _runs, acf_period, _linear_detrend, segment_cycles
+from .oscillation import _apices, _linear_detrend, _runs, acf_period, segment_cycles
 
 __all__ = ["backlash_index", "BacklashIndex", "THRESHOLDS", "bi_verdict"]
 
@@ -718,7 +718,7 @@ def _check_time(pv, sample_time, time):
     h = float(np.median(dt))
     if np.max(np.abs(dt - h)) > 0.01 * h:
         raise ValueError("time is not uniformly sampled; align the record on a uniform grid "
-                         "first (valvediag.align) or pass sample_time")
+                         "first (valvediag.analysis.align) or pass sample_time")
     return h
 
 

@@ -17,7 +17,7 @@ ranges differ). The valve starts at rest at ``x0`` (default: the first input
 value), centred in its dead band.
 
 The step functions (:func:`valve_init`, :func:`valve_step`) are shared with the
-closed-loop simulator in :mod:`valvediag.closedloop` and the workbench's
+closed-loop simulator in :mod:`valvediag.models.closedloop` and the workbench's
 kernels, so open-loop, closed-loop and fitted valves agree exactly.
 
 References

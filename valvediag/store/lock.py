@@ -31,7 +31,7 @@ import threading
 import time
 from pathlib import Path
 
-from .store import StoreLockedError
+from .database import StoreLockedError
 
 __all__ = ["ScanLock", "ScanLockedError", "lock_path", "owner_id"]
 

@@ -385,7 +385,7 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
     n_samples : int, optional
         Number of samples instead of ``duration``.
     valve : str or array_like of str
-        Valve model name, see :data:`valvediag.valves.VALVE_MODELS`.
+        Valve model name, see :data:`valvediag.models.valves.VALVE_MODELS`.
     valve_params : dict, optional
         Valve parameters by name, e.g. ``{'S': 3, 'J': 1.5}`` [OP unit].
     process : {'integrating', 'self-regulating'}
@@ -420,7 +420,7 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
     valve_noise_band : float or array_like
         Noise band of a Kano or Choudhury valve's actuator [OP unit]: the OP
         must fall back more than this from its running extreme to reverse
-        the valve (:func:`valvediag.valves.kano`). With measurement noise fed
+        the valve (:func:`valvediag.models.valves.kano`). With measurement noise fed
         back, a valve without one sticks at every noise reversal. Default 0.
 
     Returns

@@ -7,7 +7,7 @@ valley). The period is the median spacing of like crossings, the regularity
 follows Thornhill et al. (2003).
 
 The compiled functions here are shared by the Backlash Index
-(:mod:`valvediag.bi`), the one-loop classifier and the batch kernels that
+(:mod:`valvediag.analysis.bi`), the one-loop classifier and the batch kernels that
 reproduce Farenzena & Trierweiler (2012).
 
 References

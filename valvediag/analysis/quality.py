@@ -5,7 +5,7 @@ Data-quality screen of one loop: is the data fit for valve diagnosis?
 
 * **bad states**: share of PV/OP rows that are digital states (value NULL);
 * **gaps**: intervals without any sample longer than the alignment's
-  ``max_gap`` of that tag (see :func:`valvediag.align.tag_max_gap`);
+  ``max_gap`` of that tag (see :func:`valvediag.analysis.align.tag_max_gap`);
 * **frozen sensor**: long runs of exactly identical PV values;
 * **compression**: raw samples per grid point, median raw spacing against the
   grid, irregular spacing, and step-held (repeated) values. Below about ten
@@ -291,7 +291,7 @@ def quality_metrics(aligned: AlignedLoop, frames: Mapping[str, pl.DataFrame], *,
     Parameters
     ----------
     aligned : AlignedLoop
-        Output of :func:`valvediag.align.align_loop` for ``frames``.
+        Output of :func:`valvediag.analysis.align.align_loop` for ``frames``.
     frames : mapping of str to polars.DataFrame
         The raw samples by role (``ts``, ``value``, ``status``), as given to
         ``align_loop``.

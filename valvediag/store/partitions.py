@@ -32,8 +32,8 @@ from typing import TYPE_CHECKING
 import polars as pl
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .scan import LoopJob
-    from .store import Store
+    from ..scan.types import LoopJob
+    from .database import Store
 
 __all__ = ["export_partitions", "fetch_loop_windows", "load_partition_frames", "partition_dir", "partition_root",
            "remove_partitions", "GROUP_LOOPS", "PARTITION_SCHEMA"]
@@ -66,7 +66,7 @@ def _windows(store: Store, frame: pl.DataFrame, copy_to: Path | None = None
              ) -> pl.DataFrame | None:
     """The window samples of the jobs of ``frame`` (``sql/loop_windows.sql``), or, with
     ``copy_to``, written there as Parquet partitioned by job (None returned)."""
-    from .store import load_sql
+    from .database import load_sql
 
     sql = load_sql("loop_windows")
     if copy_to is not None:

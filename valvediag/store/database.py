@@ -22,8 +22,9 @@ Notes
   larger joins spill to a temporary directory beside the file.
 * Time arguments must be timezone-aware :class:`datetime.datetime` objects;
   naive ones are refused rather than guessed.
-* The SQL directory is ``<repo>/sql`` next to the package (editable install);
-  set ``VALVEDIAG_SQL_DIR`` to override.
+* The queries are the ``.sql`` files of the repository's ``sql/`` folder,
+  installed as the package ``valvediag.sql`` and read with
+  :mod:`importlib.resources`.
 """
 from __future__ import annotations
 
@@ -31,29 +32,26 @@ import contextlib
 import dataclasses
 import datetime as dt
 import functools
+import importlib.resources
 import json
 import math
 import os
 import threading
 import uuid
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from pathlib import Path
 
 import duckdb
 import polars as pl
 import pyarrow  # noqa: F401 - imported once here, not first by DuckDB in several threads at once
 
-from .registry import LoopSpec
+from ..io.registry import LoopSpec
+from ..verdicts import FAULT_VERDICTS, VERDICTS
 
-__all__ = ["Store", "StoreLockedError", "load_sql", "SQL_DIR", "FAULT_VERDICTS",
-           "VERDICTS", "EPISODE_COLUMNS", "VERDICT_COLUMNS"]
+__all__ = ["Store", "StoreLockedError", "load_sql", "SQL_DIR", "EPISODE_COLUMNS", "VERDICT_COLUMNS"]
 
-SQL_DIR = Path(os.environ.get("VALVEDIAG_SQL_DIR",
-                              Path(__file__).resolve().parent.parent / "sql"))
+#: The named queries: ``sql/`` of the repository, shipped as ``valvediag.sql``.
+SQL_DIR = importlib.resources.files("valvediag.sql")
 
-VERDICTS = ("insufficient-data", "no-oscillation", "not-integrating", "linear-oscillation",
-            "stiction", "backlash", "undecided")
-FAULT_VERDICTS = ("stiction", "backlash", "linear-oscillation")
 
 #: Columns a caller may give for episodes / verdicts (run_id is added by the store).
 EPISODE_COLUMNS: dict[str, pl.DataType] = {
@@ -309,7 +307,7 @@ class Store:
         Parameters
         ----------
         samples : polars.DataFrame
-            :data:`~valvediag.ingest.SAMPLE_SCHEMA` rows.
+            :data:`~valvediag.io.exports.SAMPLE_SCHEMA` rows.
         may_overlap : bool, optional
             The result of :meth:`may_overlap` for these samples, when the
             caller has it already (it is the costly part of the check);
@@ -349,7 +347,7 @@ class Store:
         Notes
         -----
         Within one transaction the answer holds until samples of these tags
-        are inserted, so :func:`~valvediag.ingest.ingest_exports` computes it
+        are inserted, so :func:`~valvediag.store.ingest.ingest_exports` computes it
         once per slice and passes it to :meth:`conflicting_samples` and
         :meth:`insert_new_samples`.
         """
@@ -370,7 +368,7 @@ class Store:
         Parameters
         ----------
         samples : polars.DataFrame
-            :data:`~valvediag.ingest.SAMPLE_SCHEMA` rows, unique per (tag, ts).
+            :data:`~valvediag.io.exports.SAMPLE_SCHEMA` rows, unique per (tag, ts).
         may_overlap : bool, optional
             See :meth:`conflicting_samples`; None computes it.
 
@@ -572,7 +570,7 @@ class Store:
         run_id : str, optional
             Default ``<UTC time>-<8 hex>``, which sorts by time.
         owner : str, optional
-            Who runs the scan, e.g. ``pid@host`` (:func:`valvediag.scanlock.owner_id`).
+            Who runs the scan, e.g. ``pid@host`` (:func:`valvediag.store.lock.owner_id`).
         """
         if run_id is None:
             now = dt.datetime.now(dt.timezone.utc)
@@ -630,7 +628,7 @@ class Store:
         """Mark every run still ``running`` as ``aborted``; return them.
 
         Call this only while holding the store's scan lock
-        (:class:`valvediag.scanlock.ScanLock`): then no other scan is alive, so
+        (:class:`valvediag.store.lock.ScanLock`): then no other scan is alive, so
         a run still ``running`` belongs to a scan whose process died (killed,
         crashed, power lost) and will never finish it.
 
@@ -742,11 +740,11 @@ class Store:
         complete run before it.
 
         A loop is listed when its verdict in ``run_id`` is one of
-        :data:`FAULT_VERDICTS` and in the previous complete run it was not (or
+        :data:`valvediag.verdicts.FAULT_VERDICTS` and in the previous complete run it was not (or
         the loop was absent, or there is no earlier complete run). The run
         itself may still be running.
         """
-        return self.query("new_faults_of_run", run_id=run_id)
+        return self.query("new_faults_of_run", run_id=run_id, faults=list(FAULT_VERDICTS))
 
     def new_since_last_run(self) -> pl.DataFrame:
         """Loops that turned faulty in the latest complete run (see

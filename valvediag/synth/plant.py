@@ -2,13 +2,13 @@
 Synthetic plant: historian exports of many control loops with known truth.
 
 :func:`synth_plant` simulates a plant of ``n_loops`` PI loops with the
-closed-loop simulator (:func:`valvediag.closedloop.simulate_loop`), makes the
+closed-loop simulator (:func:`valvediag.models.closedloop.simulate_loop`), makes the
 records look like a process historian's (tag names, engineering units, digital
 states, gaps, exception and swinging-door compression, status flags) and
 writes them as exports, together with the loop registry (``loops.csv``) and
 the answer key (``truth.csv``)::
 
-    >>> from valvediag.synthplant import synth_plant
+    >>> from valvediag.synth.plant import synth_plant
     >>> plant = synth_plant(40, days=0.25, sample_time=1.0, out_dir="out/plant", seed=1)
     >>> plant.truth.group_by("truth_verdict").len()
 
@@ -39,7 +39,7 @@ import numba
 import numpy as np
 import polars as pl
 
-from .closedloop import simulate_loop
+from ..models.closedloop import simulate_loop
 
 __all__ = [
     "synth_plant", "SynthPlant", "swinging_door", "exception_deadband",

@@ -53,7 +53,7 @@ def mean_cycles(signals, apex_idx, apex_sign, nbins: int = NBINS):
     signals : sequence of array_like
         Signals sampled like the PV (e.g. PV and OP).
     apex_idx, apex_sign : array_like
-        Apices of the PV (from :func:`valvediag.oscillation.segment_cycles`).
+        Apices of the PV (from :func:`valvediag.analysis.oscillation.segment_cycles`).
     nbins : int
         Phase points per cycle.
 

@@ -25,13 +25,8 @@ from .bi import THRESHOLDS, BacklashIndex, backlash_index
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import Oscillation, detect_oscillation
 
-__all__ = ["classify_loop", "LoopDiagnosis", "VERDICTS", "FAULT_VERDICTS", "integrating_screen"]
+__all__ = ["classify_loop", "LoopDiagnosis", "integrating_screen"]
 
-#: Verdict words, in order of precedence.
-VERDICTS = ("insufficient-data", "no-oscillation", "not-integrating", "linear-oscillation",
-            "stiction", "backlash", "undecided")
-#: Verdicts that call for action.
-FAULT_VERDICTS = ("stiction", "backlash", "linear-oscillation", "undecided")
 PROCESS_TYPES = ("integrating", "self-regulating", "unknown")
 
 MIN_SAMPLES = 32

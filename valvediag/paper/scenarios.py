@@ -28,9 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .closedloop import simulate_loop
-from .oscillation import acf_period, _linear_detrend
-from .paper import DB_GRID, JS_GRID, KC_GRID, S_GRID, TAU_GRID, TI_RATIO_GRID
+from ..analysis.oscillation import _linear_detrend, acf_period
+from ..models.closedloop import simulate_loop
+from .tables import DB_GRID, JS_GRID, KC_GRID, S_GRID, TAU_GRID, TI_RATIO_GRID
 
 __all__ = ["LoopCase", "draw_cases", "record"]
 

@@ -14,7 +14,7 @@ The scan's output files: ``verdicts.json``, ``work_orders.csv``,
     :func:`valvediag.scan.valve_fault_size`; ``null`` for other verdicts). NaN is
     written as ``null``; numbers are rounded to 6 significant digits.
 ``work_orders.csv``
-    One row per loop that needs action (:data:`valvediag.scan.ACTION_VERDICTS`),
+    One row per loop that needs action (:data:`valvediag.verdicts.ACTION_VERDICTS`),
     in rank order, with the columns :data:`WORK_ORDER_COLUMNS`: ``loop, unit,
     fault, confidence, severity, recommended_action, report_link, status,
     first_reported, rank, description, reason, size_estimate`` (e.g. ``dead band
@@ -43,10 +43,12 @@ import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from .report.explain import ACTIONS, size_text
-from .report.history import PlantHistory, plant_history, read_history
-from .report.html import REPORTS_DIR, loop_anchor, render_report
-from .scan import ACTION_VERDICTS, LoopResult, _clean
+from valvediag.report.explain import ACTIONS, size_text
+from valvediag.report.history import PlantHistory, plant_history, read_history
+from valvediag.report.html import REPORTS_DIR, loop_anchor, render_report
+
+from ..scan.types import LoopResult, _clean
+from ..verdicts import ACTION_VERDICTS
 
 __all__ = ["write_outputs", "write_verdicts_json", "write_work_orders", "write_work_orders_json",
            "write_report_html", "work_orders", "render_report", "loop_anchor",

@@ -41,8 +41,8 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from .bi import NREF, THRESHOLDS, W_GRID, _paper_core, _robust_core
-from .closedloop import C_NMAX, _param_table, _simulate_one
+from ..analysis.bi import NREF, THRESHOLDS, W_GRID, _paper_core, _robust_core
+from ..models.closedloop import C_NMAX, _param_table, _simulate_one
 
 __all__ = ["reproduce_paper", "PaperReproduction", "PAPER_RESULTS", "table1_grid",
            "table2_grid", "table3_grid", "run_grid"]

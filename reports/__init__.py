@@ -1,0 +1,1 @@
+"""The jinja2 templates, CSS and script of the HTML reports, shipped inside the package."""

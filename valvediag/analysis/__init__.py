@@ -1,0 +1,23 @@
+"""
+One loop, pure numerics: arrays in, frozen results out.
+
+* :mod:`~valvediag.analysis.align`: a loop's tags on one uniform grid, never
+  bridging bad states or long gaps (:func:`align_loop`).
+* :mod:`~valvediag.analysis.quality`: the data-quality screen (gaps, bad
+  states, frozen sensor, compression, manual mode, saturation).
+* :mod:`~valvediag.analysis.oscillation`: oscillation detection, period,
+  amplitude and Thornhill's regularity.
+* :mod:`~valvediag.analysis.linearity`: the shape of the mean cycle
+  (harmonic distortion, ramps), which tells a valve from a sinusoid.
+* :mod:`~valvediag.analysis.bi`: the Backlash Index of Farenzena &
+  Trierweiler (2012), literal and robust.
+* :mod:`~valvediag.analysis.classify`: one verdict for one record.
+"""
+from .align import AlignedLoop, align_loop
+from .bi import BacklashIndex, backlash_index
+from .classify import LoopDiagnosis, classify_loop
+from .oscillation import Oscillation, detect_oscillation
+from .quality import DataQuality, quality_metrics
+
+__all__ = ["AlignedLoop", "align_loop", "BacklashIndex", "backlash_index", "LoopDiagnosis",
+           "classify_loop", "Oscillation", "detect_oscillation", "DataQuality", "quality_metrics"]
