@@ -16,7 +16,7 @@ local Dask cluster of 2 worker processes against 1 (``valvediag scan
    rows are stored than the nominal 3 x 86,400 per loop-day; both counts are
    printed.
 2. **End to end** (timed). A child process runs the Prefect flow
-   ``nightly-scan`` (:func:`pipelines.nightly.nightly_scan`, the flow that
+   ``nightly-scan`` (:func:`valvediag.pipelines.nightly.nightly_scan`, the flow that
    ``valvediag scan`` and the nightly deployment run) with the same
    arguments as ``valvediag scan --exports <plant>/exports --loops
    <plant>/loops.csv --db <fresh store> --out <dir>``: ingest into a fresh
@@ -24,14 +24,14 @@ local Dask cluster of 2 worker processes against 1 (``valvediag scan
    processes of the flow, the default; ``--workers N`` for a local Dask
    cluster), rank, persist, write
    the outputs and artifacts. Stage times come from the flow's progress
-   reports (:func:`pipelines.nightly.progress_to`): ingest, then plan +
+   reports (:func:`valvediag.pipelines.nightly.progress_to`): ingest, then plan +
    analysis (including the start of the worker processes), then rank +
    persist + outputs. The Prefect API server the flow reports to is started
    in the child before the clock starts (its start-up is printed, not timed)
    and is private to the benchmark (its ``PREFECT_HOME`` is in the work
    directory), so runs never land in a user's Prefect server.
-   The flow analyses on :data:`pipelines.nightly.ANALYSIS_PROCESSES` worker
-   processes (one per core), :func:`pipelines.nightly.loop_batches` loops
+   The flow analyses on :data:`valvediag.pipelines.nightly.ANALYSIS_PROCESSES` worker
+   processes (one per core), :func:`valvediag.pipelines.nightly.loop_batches` loops
    per task.
 3. **Dask speed-up** (timed). The first ``--speedup-loops`` loops of the
    registry are scanned again, on the store of step 2 (the exports are
@@ -177,7 +177,7 @@ def _child(spec_path: str) -> None:
     from prefect.server.api.server import SubprocessASGIServer
     from prefect.settings import PREFECT_API_URL, temporary_settings
 
-    from pipelines.nightly import nightly_scan, progress_to
+    from valvediag.pipelines.nightly import nightly_scan, progress_to
 
     events: list[tuple[str, int, int, float]] = []
     shown: dict[str, int] = {}

@@ -20,9 +20,7 @@ import os
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from pipelines import serve  # noqa: E402
+from valvediag.pipelines import serve
 
 DEFAULTS = {"exports": "data/exports", "loops": "data/loops.csv",
             "db": "data/valvediag.duckdb", "out": "out/nightly"}

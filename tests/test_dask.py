@@ -32,7 +32,7 @@ def plant(tmp_path_factory):
 
 
 def _scan(plant, work, **kw):
-    from pipelines.nightly import nightly_scan
+    from valvediag.pipelines.nightly import nightly_scan
 
     state = nightly_scan(exports=str(plant / "exports"), loops=str(plant / "loops.csv"),
                          db=str(work / "plant.duckdb"), out=str(work / "out"),
@@ -75,7 +75,7 @@ def test_two_local_workers_give_the_single_process_results(single, plant, tmp_pa
 
 def test_worker_processes_give_the_thread_results(single, plant, tmp_path, monkeypatch):
     """The default analysis of a plant: batches of loops on Prefect's process pool."""
-    import pipelines.nightly as nightly
+    import valvediag.pipelines.nightly as nightly
 
     started = []
 
@@ -97,7 +97,7 @@ def test_worker_processes_give_the_thread_results(single, plant, tmp_path, monke
 
 @pytest.mark.parametrize("n, workers", [(1, 2), (8, 2), (100, 2), (1000, 2), (1000, 16), (37, 3)])
 def test_loop_batches_cover_every_loop_once_in_order(n, workers):
-    from pipelines.nightly import BATCH_LOOPS, BATCHES_PER_WORKER, loop_batches
+    from valvediag.pipelines.nightly import BATCH_LOOPS, BATCHES_PER_WORKER, loop_batches
 
     batches = loop_batches(n, workers)
     assert [k for b in batches for k in b] == list(range(n))

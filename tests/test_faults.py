@@ -38,7 +38,7 @@ def plant(tmp_path_factory):
 @pytest.fixture(scope="module")
 def reference(prefect_api, plant, tmp_path_factory):
     """One clean scan (in this process): the samples and verdicts every other run must match."""
-    from pipelines.nightly import nightly_scan
+    from valvediag.pipelines.nightly import nightly_scan
 
     work = tmp_path_factory.mktemp("reference")
     state = nightly_scan(exports=str(plant / "exports"), loops=str(plant / "loops.csv"),

@@ -43,7 +43,7 @@ def registry_loops(plant):
 
 
 def _scan(plant, db, out, **kw):
-    from pipelines.nightly import nightly_scan
+    from valvediag.pipelines.nightly import nightly_scan
 
     return nightly_scan(exports=str(plant / "exports"), loops=str(plant / "loops.csv"),
                         db=str(db), out=str(out), return_state=True, **kw)
@@ -51,7 +51,7 @@ def _scan(plant, db, out, **kw):
 
 @pytest.fixture(scope="module")
 def first_run(prefect_api, plant, tmp_path_factory):
-    from pipelines.nightly import progress_to
+    from valvediag.pipelines.nightly import progress_to
 
     work = tmp_path_factory.mktemp("flow_run")
     events = []
@@ -103,7 +103,7 @@ def test_flow_creates_artifacts(first_run, registry_loops):
     from prefect.client.orchestration import get_client
     from prefect.client.schemas.filters import ArtifactFilter, ArtifactFilterFlowRunId
 
-    from pipelines.nightly import REPORT_ARTIFACT_KEY, TABLE_ARTIFACT_KEY
+    from valvediag.pipelines.nightly import REPORT_ARTIFACT_KEY, TABLE_ARTIFACT_KEY
 
     flow_run_id = first_run["state"].state_details.flow_run_id
     with get_client(sync_client=True) as client:
@@ -147,7 +147,7 @@ def test_failed_step_marks_the_run_failed(prefect_api, plant, tmp_path):
 
 
 def test_no_export_fails_before_touching_the_store(prefect_api, plant, tmp_path):
-    from pipelines.nightly import nightly_scan
+    from valvediag.pipelines.nightly import nightly_scan
 
     state = nightly_scan(exports=str(tmp_path / "nothing" / "*.csv"),
                          loops=str(plant / "loops.csv"), db=str(tmp_path / "p.duckdb"),
@@ -197,12 +197,12 @@ def test_scan_summary_names_the_outputs(prefect_api, plant, tmp_path, capsys, mo
 
 
 def test_scan_failed_flow_is_one_line_error(prefect_api, plant, tmp_path, capsys, monkeypatch):
-    import pipelines.nightly
+    import valvediag.pipelines.nightly
 
     def broken(*args, **kwargs):
         raise RuntimeError("disk full\nwhile writing report.html")
 
-    monkeypatch.setattr(pipelines.nightly, "write_outputs", broken)
+    monkeypatch.setattr(valvediag.pipelines.nightly, "write_outputs", broken)
     rc, out, err = _cli(["--exports", plant / "exports", "--loops", plant / "loops.csv",
                          "--db", tmp_path / "p.duckdb", "--out", tmp_path / "out"],
                         capsys, monkeypatch)

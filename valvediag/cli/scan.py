@@ -1,7 +1,7 @@
 """``valvediag scan``: the nightly plant scan, run here and now.
 
 The command checks its inputs, then runs the Prefect flow ``nightly-scan``
-(:mod:`pipelines.nightly`, the flow the ``nightly-scan/nightly`` deployment
+(:mod:`valvediag.pipelines.nightly`, the flow the ``nightly-scan/nightly`` deployment
 runs) in this process, with a progress display. Prefect is imported only
 inside the handler.
 """
@@ -222,7 +222,7 @@ def run(args) -> int:
     if not args.verbose:   # Prefect's console lines (the API still records them); the
         # warnings of the run are printed below, once
         os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "ERROR")
-    from pipelines.nightly import nightly_scan, progress_to
+    from valvediag.pipelines.nightly import nightly_scan, progress_to
 
     from ..store.lock import ScanLock, ScanLockedError
 
