@@ -30,8 +30,8 @@ local Dask cluster of 2 worker processes against 1 (``valvediag scan
    in the child before the clock starts (its start-up is printed, not timed)
    and is private to the benchmark (its ``PREFECT_HOME`` is in the work
    directory), so runs never land in a user's Prefect server.
-   The flow analyses on :data:`valvediag.pipelines.nightly.ANALYSIS_PROCESSES` worker
-   processes (one per core), :func:`valvediag.pipelines.nightly.loop_batches` loops
+   The flow analyses on :data:`valvediag.pipelines.runners.ANALYSIS_PROCESSES` worker
+   processes (one per core), :func:`valvediag.pipelines.runners.loop_batches` loops
    per task.
 3. **Dask speed-up** (timed). The first ``--speedup-loops`` loops of the
    registry are scanned again, on the store of step 2 (the exports are

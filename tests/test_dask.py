@@ -75,21 +75,21 @@ def test_two_local_workers_give_the_single_process_results(single, plant, tmp_pa
 
 def test_worker_processes_give_the_thread_results(single, plant, tmp_path, monkeypatch):
     """The default analysis of a plant: batches of loops on Prefect's process pool."""
-    import valvediag.pipelines.nightly as nightly
+    import valvediag.pipelines.runners as runners
 
     started = []
 
-    class Recorded(nightly.ProcessPoolTaskRunner):
+    class Recorded(runners.ProcessPoolTaskRunner):
         def __enter__(self):
             started.append(self._max_workers)
             return super().__enter__()
 
-    monkeypatch.setattr(nightly, "MIN_LOOPS_FOR_PROCESSES", 1)   # 8 loops are few
-    monkeypatch.setattr(nightly, "ProcessPoolTaskRunner", Recorded)
+    monkeypatch.setattr(runners, "MIN_LOOPS_FOR_PROCESSES", 1)   # 8 loops are few
+    monkeypatch.setattr(runners, "ProcessPoolTaskRunner", Recorded)
     ref_work, ref = single
     summary = _scan(plant, tmp_path, processes=2)
     assert started == [2]
-    assert len(nightly.loop_batches(N_LOOPS, 2)) == N_LOOPS    # one loop per batch here
+    assert len(runners.loop_batches(N_LOOPS, 2)) == N_LOOPS    # one loop per batch here
     assert summary["counts"] == ref["counts"]
     assert _loops_json(tmp_path) == _loops_json(ref_work)
     assert _stored(tmp_path) == _stored(ref_work)
@@ -97,7 +97,7 @@ def test_worker_processes_give_the_thread_results(single, plant, tmp_path, monke
 
 @pytest.mark.parametrize("n, workers", [(1, 2), (8, 2), (100, 2), (1000, 2), (1000, 16), (37, 3)])
 def test_loop_batches_cover_every_loop_once_in_order(n, workers):
-    from valvediag.pipelines.nightly import BATCH_LOOPS, BATCHES_PER_WORKER, loop_batches
+    from valvediag.pipelines.runners import BATCH_LOOPS, BATCHES_PER_WORKER, loop_batches
 
     batches = loop_batches(n, workers)
     assert [k for b in batches for k in b] == list(range(n))

@@ -25,7 +25,7 @@ from valvediag.io.registry import read_loops_csv
 from valvediag.store.database import VERDICTS, Store
 from valvediag.synth.plant import synth_plant
 
-# at least valvediag.pipelines.nightly.MIN_LOOPS_FOR_PROCESSES loops: the flow run analyses them
+# at least valvediag.pipelines.runners.MIN_LOOPS_FOR_PROCESSES loops: the flow run analyses them
 # on worker processes of the process worker's flow run, as a plant's nightly run does
 N_LOOPS, DAYS, SAMPLE_TIME, SEED = 16, 4 / 24, 5.0, 5
 RUN_TIMEOUT_S = 300
@@ -103,7 +103,7 @@ def test_prefect_deployment_run_completes_and_writes_results(stack):
     assert stored.height == len(loops)
 
     # batches of several loops: the worker-process path, not the threads of a small plant
-    from valvediag.pipelines.nightly import MIN_LOOPS_FOR_PROCESSES
+    from valvediag.pipelines.runners import MIN_LOOPS_FOR_PROCESSES
 
     assert N_LOOPS >= MIN_LOOPS_FOR_PROCESSES
     tasks = serve.api_post(stack["api_url"], "/task_runs/filter",

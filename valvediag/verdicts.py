@@ -24,7 +24,7 @@ from __future__ import annotations
 
 __all__ = ["VERDICTS", "PRECEDENCE", "RANK_ORDER", "VALVE_FAULTS", "VALVE_NONLINEARITY",
            "ACTION_VERDICTS", "FAULT_VERDICTS", "EPISODE_VERDICTS", "HEALTHY_VERDICTS",
-           "rank_position"]
+           "rank_position", "count_verdicts"]
 
 #: Every verdict word, in the order a loop is checked for them.
 PRECEDENCE = ("insufficient-data", "no-oscillation", "not-integrating", "linear-oscillation",
@@ -50,6 +50,30 @@ FAULT_VERDICTS = ("stiction", "backlash", "linear-oscillation")
 EPISODE_VERDICTS = ("not-integrating", "linear-oscillation", "stiction", "backlash", "undecided")
 #: Verdicts that close an open problem of an earlier run.
 HEALTHY_VERDICTS = ("no-oscillation", "not-integrating")
+
+
+def count_verdicts(verdicts) -> dict[str, int]:
+    """Loops per verdict, every verdict listed (0 included), in :data:`VERDICTS` order.
+
+    Parameters
+    ----------
+    verdicts : iterable of str
+        One verdict per loop.
+
+    Returns
+    -------
+    dict of str to int
+        Words outside :data:`VERDICTS` are counted after them.
+
+    Examples
+    --------
+    >>> count_verdicts(["stiction", "no-oscillation", "stiction"])["stiction"]
+    2
+    """
+    counts = {v: 0 for v in VERDICTS}
+    for v in verdicts:
+        counts[v] = counts.get(v, 0) + 1
+    return counts
 
 
 def rank_position(verdict: str) -> int:

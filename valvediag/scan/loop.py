@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -95,7 +95,8 @@ def load_loop_frames(db_path, job: LoopJob) -> dict[str, pl.DataFrame]:
         return store.fetch_loop(job.spec, job.start, job.end)
 
 
-def analyse_stored_loops(db_path, jobs: Sequence[LoopJob], config: ScanConfig = ScanConfig()
+def analyse_stored_loops(db_path, jobs: Sequence[LoopJob], config: ScanConfig = ScanConfig(),
+                         progress: Callable[[int, int], object] | None = None
                          ) -> list[LoopResult]:
     """Read and diagnose several loops with one connection to the store.
 
@@ -108,6 +109,8 @@ def analyse_stored_loops(db_path, jobs: Sequence[LoopJob], config: ScanConfig = 
         The loops and windows.
     config : ScanConfig
         As for :func:`analyse_loop`.
+    progress : callable(done, total), optional
+        Called after each group of loops read.
 
     Returns
     -------
@@ -143,6 +146,8 @@ def analyse_stored_loops(db_path, jobs: Sequence[LoopJob], config: ScanConfig = 
             for k, job in enumerate(chunk):
                 results.append(analyse_loop(job, frames[k], config))
                 frames[k] = None      # free each loop's samples once analysed
+            if progress is not None:
+                progress(len(results), len(jobs))
     return results
 
 

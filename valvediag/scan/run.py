@@ -1,27 +1,334 @@
 """
-A whole plant scan, from the historian exports to the report.
+A whole plant scan, from the historian exports to the report: one sequence of
+steps, whichever entry point runs it.
+
+:func:`execute_scan` takes the store's scan lock and runs the steps of a
+:class:`ScanSteps` in order: read the registry, ingest (after marking the runs
+of dead scans aborted), plan and start the run, analyse, rank, persist (and
+find the faults new since the previous complete run), write the outputs,
+publish, and finish the run, or mark it failed with a one-line note. The
+steps are plain functions of this module. :func:`run_scan` executes them in
+this process; the nightly Prefect flow (``valvediag.pipelines.nightly``)
+executes the same sequence with each step wrapped as a Prefect task and the
+analysis spread over worker processes or Dask.
 """
 from __future__ import annotations
 
 import datetime as dt
 import os
 import time
-from collections.abc import Callable
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Sequence
 
-if TYPE_CHECKING:  # pragma: no cover
-
-    pass
-
-from .loop import analyse_loop, load_loop_frames
+from ..io.exports import expand_paths
+from ..io.registry import LoopSpec, read_loops_csv
+from ..report.outputs import write_outputs
+from ..store.database import Store
+from ..store.ingest import IngestReport, ingest_exports
+from ..store.lock import ScanLock, owner_id
+from ..store.partitions import partition_dir, remove_partitions
+from .loop import analyse_stored_loops
 from .plan import plan_loops
 from .plant import persist_results, rank_results
-from .types import _UTC, ScanConfig, ScanSummary
+from .types import LoopJob, LoopResult, ScanConfig, ScanSummary
+
+__all__ = ["ScanSteps", "execute_scan", "run_scan", "ingest_step", "plan_run", "persist_run",
+           "finish_run", "fail_run", "discard_partitions", "run_info"]
+
+_UTC = dt.timezone.utc
+
+
+# ------------------------------------------------------------------------------ steps
+def ingest_step(db, exports: Sequence[str], loops: Sequence[LoopSpec], timezone: str | None,
+                partitions: str | None = None,
+                progress: Callable[[int, int], object] | None = None
+                ) -> tuple[IngestReport, list[dict]]:
+    """Mark the runs of dead scans aborted, ingest the exports and store the registry.
+
+    Parameters
+    ----------
+    db : str or path-like
+        The store (created when missing).
+    exports : sequence of str
+        Export files, directories or globs.
+    loops : sequence of LoopSpec
+        The registry; it replaces the stored one.
+    timezone : str or None
+        IANA zone of naive time stamps.
+    partitions : str, optional
+        Where Dask partitions live (:func:`valvediag.store.partitions.partition_dir`);
+        those of aborted runs are deleted.
+    progress : callable(done, total), optional
+        Files ingested so far.
+
+    Returns
+    -------
+    report : IngestReport
+    aborted : list of dict
+        The runs marked aborted (``run_id``, ``owner``).
+
+    Raises
+    ------
+    FileNotFoundError
+        No export file matches at all.
+
+    Notes
+    -----
+    Runs left ``running`` belong to scans that died: the caller holds the
+    scan lock, so no other scan of the store is alive.
+    """
+    files, _ = expand_paths(exports)    # ingest_exports reports patterns matching nothing
+    if not files:
+        raise FileNotFoundError(f"no export file matches {', '.join(exports)}")
+    if progress is not None:
+        progress(0, len(files))
+    with Store(db) as store:
+        aborted = store.abort_stale_runs()
+        for run in aborted:
+            remove_partitions(partition_dir(db, run["run_id"], partitions))
+        report = ingest_exports(store, exports, timezone=timezone,
+                                progress=None if progress is None else
+                                lambda done, total, _path: progress(done, total))
+        store.replace_loops(loops)
+    return report, aborted
+
+
+def plan_run(db, loops: Sequence[LoopSpec], config: ScanConfig, exports: Sequence[str]
+             ) -> tuple[str, list[LoopJob]]:
+    """Plan every loop's window and register the run (status ``running``).
+
+    Parameters
+    ----------
+    db : str or path-like
+        The store.
+    loops : sequence of LoopSpec
+        The registry.
+    config : ScanConfig
+        The scan's parameters.
+    exports : sequence of str
+        What the run read (kept with the run).
+
+    Returns
+    -------
+    run_id : str
+    jobs : list of LoopJob
+        In registry order.
+    """
+    with Store(db) as store:
+        jobs = plan_loops(store, loops, config)
+        run_id = store.start_run(window_start=min((j.start for j in jobs), default=None),
+                                 window_end=max((j.end for j in jobs), default=None),
+                                 exports=list(exports), params=config.to_json(),
+                                 owner=owner_id())
+    return run_id, jobs
+
+
+def persist_run(db, run_id: str, ranked: Sequence[LoopResult]) -> list[str]:
+    """Store the run's verdicts and episodes; return the loops that are new faults.
+
+    Parameters
+    ----------
+    db : str or path-like
+    run_id : str
+    ranked : sequence of LoopResult
+
+    Returns
+    -------
+    list of str
+        Loops whose verdict is a fault (:data:`valvediag.verdicts.FAULT_VERDICTS`)
+        that was not one in the latest complete run before this one.
+    """
+    with Store(db) as store:
+        persist_results(store, run_id, ranked)
+        return store.new_faults(run_id)["loop"].to_list()
+
+
+def finish_run(db, run_id: str) -> None:
+    """Mark the run ``complete``: every step succeeded.
+
+    Parameters
+    ----------
+    db : str or path-like
+    run_id : str
+    """
+    with Store(db) as store:
+        store.finish_run(run_id, "complete")
+
+
+def fail_run(db, run_id: str, exc: BaseException) -> None:
+    """Mark the run ``failed`` with a one-line note of what went wrong.
+
+    Parameters
+    ----------
+    db : str or path-like
+    run_id : str
+    exc : BaseException
+        The failure.
+    """
+    note = " ".join(str(exc).split())[:500] or type(exc).__name__
+    with Store(db) as store:
+        store.finish_run(run_id, "failed", note=note)
+
+
+def discard_partitions(db, run_id: str, partitions: str | None) -> None:
+    """Delete the run's Dask partitions, if it wrote any.
+
+    Parameters
+    ----------
+    db : str or path-like
+    run_id : str
+    partitions : str or None
+        Their root (default beside the store).
+    """
+    remove_partitions(partition_dir(db, run_id, partitions))
+
+
+def run_info(db, loops_csv, exports: Sequence[str], jobs: Sequence[LoopJob],
+             config: ScanConfig, registry_problems: Sequence[str], ingest: IngestReport,
+             new_faults: Sequence[str]) -> dict:
+    """The header of the report: what the run read, its window and its parameters.
+
+    Parameters
+    ----------
+    db, loops_csv : str or path-like
+    exports : sequence of str
+    jobs : sequence of LoopJob
+    config : ScanConfig
+    registry_problems : sequence of str
+    ingest : IngestReport
+    new_faults : sequence of str
+
+    Returns
+    -------
+    dict
+        See :func:`valvediag.report.render_report`.
+    """
+    return {"db": os.fspath(db), "loops_csv": os.fspath(loops_csv), "exports": list(exports),
+            "window_start": min((j.start for j in jobs), default=None),
+            "window_end": max((j.end for j in jobs), default=None),
+            "config": config.to_json(), "registry_problems": list(registry_problems),
+            "ingest_errors": list(ingest.errors), "new_faults": list(new_faults),
+            "generated": dt.datetime.now(_UTC)}
+
+
+class ScanSteps:
+    """The steps of a scan, run directly in this process.
+
+    :func:`execute_scan` calls each attribute in turn; the nightly flow
+    passes a subclass whose attributes are the same functions wrapped as
+    Prefect tasks, with its own ``analyse`` (worker processes or Dask) and
+    ``publish`` (Prefect artifacts). Every step takes and returns plain
+    values, so the two runs differ only in where each step executes.
+    """
+
+    read_registry = staticmethod(read_loops_csv)
+    ingest = staticmethod(ingest_step)
+    plan = staticmethod(plan_run)
+    rank = staticmethod(rank_results)
+    persist = staticmethod(persist_run)
+    finish = staticmethod(finish_run)
+    fail = staticmethod(fail_run)
+
+    def __init__(self, progress: Callable[[str, int, int], object] | None = None):
+        self.progress = progress
+
+    def report(self, stage: str) -> Callable[[int, int], object] | None:
+        """The progress callback of one stage (``'ingest'``, ``'analyse'``), or None."""
+        if self.progress is None:
+            return None
+        return lambda done, total: self.progress(stage, done, total)
+
+    def analyse(self, db, run_id: str, jobs: Sequence[LoopJob], config: ScanConfig
+                ) -> list[LoopResult]:
+        """Analyse the loops (here: in this process,
+        :func:`~valvediag.scan.loop.analyse_stored_loops`)."""
+        progress = self.report("analyse")
+        if progress is not None:
+            progress(0, len(jobs))
+        return analyse_stored_loops(db, jobs, config, progress)
+
+    def outputs(self, ranked: Sequence[LoopResult], out, run_id: str, info: dict) -> dict:
+        """Write the outputs (:func:`valvediag.report.outputs.write_outputs`)."""
+        return write_outputs(ranked, out, run_id=run_id, run_info=info)
+
+    def publish(self, ranked: Sequence[LoopResult], paths: dict, run_id: str,
+                new_faults: Sequence[str]) -> None:
+        """Announce the run beyond its output files (here: nothing)."""
+
+    def cleanup(self, db, run_id: str) -> None:
+        """Remove what the run left behind (here: nothing)."""
+
+
+def execute_scan(exports, loops_csv, db, out_dir, config: ScanConfig = ScanConfig(), *,
+                 steps: ScanSteps | None = None, wait_s: float = 0.0,
+                 partitions: str | None = None) -> ScanSummary:
+    """Run a whole scan: the one sequence every entry point uses.
+
+    Parameters
+    ----------
+    exports : str, path-like or iterable of them
+        Historian export files, directories or globs.
+    loops_csv : str or path-like
+        The loop registry.
+    db : str or path-like
+        The store (created when missing).
+    out_dir : str or path-like
+        Where the outputs go.
+    config : ScanConfig
+        The scan's parameters.
+    steps : ScanSteps, optional
+        How each step runs (default: directly, in this process).
+    wait_s : float, default 0
+        Longest wait for another scan of the same store to end [s]; then a
+        one-line :class:`~valvediag.store.lock.ScanLockedError`.
+    partitions : str, optional
+        Root of the Dask partitions (deleted at the end of the run).
+
+    Returns
+    -------
+    ScanSummary
+
+    Notes
+    -----
+    The scan lock is taken here, once, for the whole run (a process that
+    already holds it, such as ``valvediag scan`` around the flow, shares
+    it). The run is ``complete`` only when every step after the plan
+    succeeded; otherwise it is ``failed`` with a one-line note, and the
+    exception propagates.
+    """
+    steps = steps or ScanSteps()
+    if isinstance(exports, (str, os.PathLike)):
+        exports = [exports]
+    exports = [os.fspath(e) for e in exports]
+    with ScanLock(db, timeout=wait_s):
+        loops, problems = steps.read_registry(loops_csv)
+        t0 = time.perf_counter()
+        ingest, _ = steps.ingest(db, exports, loops, config.timezone, partitions,
+                                 steps.report("ingest"))
+        ingest_s = time.perf_counter() - t0
+        run_id, jobs = steps.plan(db, loops, config, exports)
+        t1 = time.perf_counter()
+        try:
+            ranked = steps.rank(steps.analyse(db, run_id, jobs, config))
+            analysis_s = time.perf_counter() - t1
+            new_faults = steps.persist(db, run_id, ranked)
+            info = run_info(db, loops_csv, exports, jobs, config, problems, ingest, new_faults)
+            paths = steps.outputs(ranked, out_dir, run_id, info)
+            steps.publish(ranked, paths, run_id, new_faults)
+            steps.finish(db, run_id)
+        except BaseException as exc:
+            steps.fail(db, run_id, exc)
+            raise
+        finally:
+            steps.cleanup(db, run_id)
+    return ScanSummary(run_id=run_id, results=tuple(ranked), outputs=paths, ingest=ingest,
+                       registry_problems=tuple(problems), new_faults=tuple(new_faults),
+                       ingest_s=ingest_s, analysis_s=analysis_s)
 
 
 def run_scan(exports, loops_csv, db, out_dir, *, config: ScanConfig = ScanConfig(),
-             progress: Callable[[int, int], object] | None = None) -> ScanSummary:
-    """The whole nightly scan in one process, without Prefect.
+             progress: Callable[[str, int, int], object] | None = None,
+             wait_s: float = 0.0) -> ScanSummary:
+    """The whole nightly scan in this process, without Prefect.
 
     Parameters
     ----------
@@ -37,8 +344,10 @@ def run_scan(exports, loops_csv, db, out_dir, *, config: ScanConfig = ScanConfig
         Where ``verdicts.json``, ``work_orders.csv`` and ``report.html`` go.
     config : ScanConfig
         Scan parameters.
-    progress : callable(done, total), optional
-        Called after each loop analysed.
+    progress : callable(stage, done, total), optional
+        Called with ``'ingest'`` (files) and ``'analyse'`` (loops).
+    wait_s : float, default 0
+        Longest wait for another scan of the store [s].
 
     Returns
     -------
@@ -48,55 +357,17 @@ def run_scan(exports, loops_csv, db, out_dir, *, config: ScanConfig = ScanConfig
     ------
     valvediag.io.registry.RegistryError
         ``loops.csv`` cannot be read at all (one line naming the file).
+    valvediag.store.lock.ScanLockedError
+        Another scan holds the store.
 
     Notes
     -----
-    An export that cannot be read (unknown columns, say) is reported in
-    ``ScanSummary.errors`` with a one-line message naming the file; the
-    other files are ingested and the scan goes on. Problems in single rows of
-    ``loops.csv`` are in ``registry_problems`` and the loop's verdict says
-    why it could not be analysed. The run is recorded ``complete`` in the
-    store, or ``failed`` (and the exception re-raised) if the analysis fails.
+    The same steps as the nightly flow (:func:`execute_scan`), run one after
+    the other. An export that cannot be read (unknown columns, say) is
+    reported in ``ScanSummary.errors`` with a one-line message naming the
+    file; the other files are ingested and the scan goes on. Problems in
+    single rows of ``loops.csv`` are in ``registry_problems`` and the loop's
+    verdict says why it could not be analysed.
     """
-    from ..io.registry import read_loops_csv
-    from ..report.outputs import write_outputs
-    from ..store.database import Store
-    from ..store.ingest import ingest_exports
-
-    loops, problems = read_loops_csv(loops_csv)
-    if isinstance(exports, (str, os.PathLike)):
-        exports = [exports]
-    exports = [os.fspath(e) for e in exports]
-    with Store(db) as store:
-        t0 = time.perf_counter()
-        report = ingest_exports(store, exports, timezone=config.timezone)
-        ingest_s = time.perf_counter() - t0
-        store.replace_loops(loops)
-        jobs = plan_loops(store, loops, config)
-        w0 = min((j.start for j in jobs), default=None)
-        w1 = max((j.end for j in jobs), default=None)
-        run_id = store.start_run(window_start=w0, window_end=w1, exports=exports,
-                                 params=config.to_json())
-        t1 = time.perf_counter()
-        try:
-            results = []
-            for i, job in enumerate(jobs, 1):
-                results.append(analyse_loop(job, load_loop_frames(store, job), config))
-                if progress is not None:
-                    progress(i, len(jobs))
-            results = rank_results(results)
-            persist_results(store, run_id, results)
-        except BaseException:
-            store.finish_run(run_id, "failed")
-            raise
-        store.finish_run(run_id, "complete")
-        analysis_s = time.perf_counter() - t1
-        new = tuple(store.new_since_last_run()["loop"].to_list())
-    run_info = {"db": os.fspath(db), "loops_csv": os.fspath(loops_csv), "exports": exports,
-                "window_start": w0, "window_end": w1, "config": config.to_json(),
-                "registry_problems": list(problems), "ingest_errors": list(report.errors),
-                "new_faults": list(new), "generated": dt.datetime.now(_UTC)}
-    outputs = write_outputs(results, out_dir, run_id=run_id, run_info=run_info)
-    return ScanSummary(run_id=run_id, results=tuple(results), outputs=outputs, ingest=report,
-                       registry_problems=tuple(problems), new_faults=new, ingest_s=ingest_s,
-                       analysis_s=analysis_s)
+    return execute_scan(exports, loops_csv, db, out_dir, config, steps=ScanSteps(progress),
+                        wait_s=wait_s)

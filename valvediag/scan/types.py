@@ -18,7 +18,7 @@ import numpy as np
 from ..analysis.align import AlignedLoop
 from ..analysis.classify import LoopDiagnosis
 from ..io.registry import LoopSpec
-from ..verdicts import ACTION_VERDICTS
+from ..verdicts import ACTION_VERDICTS, count_verdicts
 
 if TYPE_CHECKING:  # pragma: no cover
 
@@ -476,7 +476,7 @@ class LoopResult:
 
 @dataclass(frozen=True)
 class ScanSummary:
-    """What :func:`run_scan` did.
+    """What a scan did (:func:`valvediag.scan.run.execute_scan`).
 
     Attributes
     ----------
@@ -492,7 +492,7 @@ class ScanSummary:
         One line per problem found in ``loops.csv``.
     new_faults : tuple of str
         Loops that turned faulty since the previous complete run
-        (:meth:`valvediag.store.Store.new_since_last_run`).
+        (:meth:`valvediag.store.Store.new_faults`).
     ingest_s, analysis_s : float
         Wall time of the ingest and of the analysis [s].
     """
@@ -507,18 +507,29 @@ class ScanSummary:
     analysis_s: float = 0.0
 
     @property
-    def counts(self) -> dict[str, int]:
-        """Loops per verdict."""
-        out: dict[str, int] = {}
-        for r in self.results:
-            out[r.verdict] = out.get(r.verdict, 0) + 1
-        return out
-
-    @property
     def errors(self) -> tuple[str, ...]:
         """One line per export file that could not be read."""
         return tuple(self.ingest.errors)
 
+    def to_json(self) -> dict:
+        """A plain summary (what the nightly flow returns).
 
-# ------------------------------------------------------------------ planning
+        Returns
+        -------
+        dict
+            ``run_id``, ``loops``, ``counts`` (every verdict, in
+            :data:`valvediag.verdicts.VERDICTS` order), ``new_faults``,
+            ``outputs`` (absolute paths), ``ingest`` (``files``,
+            ``rows_inserted``, ``rows_skipped_duplicate``,
+            ``rows_quarantined``, ``errors``) and ``registry_problems``.
+        """
+        r = self.ingest
+        return {"run_id": self.run_id, "loops": len(self.results),
+                "counts": count_verdicts(x.verdict for x in self.results),
+                "new_faults": list(self.new_faults),
+                "outputs": {k: str(Path(p).resolve()) for k, p in self.outputs.items()},
+                "ingest": {"files": r.files, "rows_inserted": r.rows_inserted,
+                           "rows_skipped_duplicate": r.rows_skipped_duplicate,
+                           "rows_quarantined": r.rows_quarantined, "errors": list(r.errors)},
+                "registry_problems": list(self.registry_problems)}
 

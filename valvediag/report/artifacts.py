@@ -1,0 +1,79 @@
+"""
+A run in a few lines, for an orchestrator's dashboard: a table of the ranked
+loops and a markdown summary linking the report (the nightly flow attaches them
+to its Prefect run as artifacts).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+from ..scan.types import LoopResult
+from ..verdicts import count_verdicts
+
+__all__ = ["ranked_table", "run_summary_markdown"]
+
+
+def _num(x, digits: int = 4):
+    return None if x is None or not math.isfinite(x) else round(float(x), digits)
+
+
+def ranked_table(ranked: Sequence[LoopResult], max_rows: int) -> tuple[list[dict], str]:
+    """The first ``max_rows`` loops by rank as table rows, and the table's caption.
+
+    Parameters
+    ----------
+    ranked : sequence of LoopResult
+        In rank order.
+    max_rows : int
+
+    Returns
+    -------
+    rows : list of dict
+        ``rank, loop, verdict, confidence, severity, bi, period_s,
+        amplitude_pct_span, reason``.
+    caption : str
+        Says when the table is cut.
+    """
+    rows = [{"rank": r.rank, "loop": r.loop, "verdict": r.verdict,
+             "confidence": r.confidence, "severity": round(r.severity, 4),
+             "bi": _num(r.bi), "period_s": _num(r.period_s),
+             "amplitude_pct_span": _num(r.amplitude_pct_span), "reason": r.reason}
+            for r in ranked[:max_rows]]
+    shown = ("" if len(ranked) <= max_rows
+             else f" (first {max_rows} of {len(ranked)}; the report has all)")
+    return rows, f"loops by rank{shown}"
+
+
+def run_summary_markdown(ranked: Sequence[LoopResult], paths: Mapping[str, str], run_id: str,
+                         new_faults: Sequence[str], title: str = "valvediag nightly scan") -> str:
+    """A markdown summary of a run: counts per verdict, new faults, the top loops, links.
+
+    Parameters
+    ----------
+    ranked : sequence of LoopResult
+    paths : mapping
+        ``report``, ``work_orders``, ``verdicts`` (absolute paths).
+    run_id : str
+    new_faults : sequence of str
+    title : str
+
+    Returns
+    -------
+    str
+    """
+    act = [r for r in ranked if r.rank is not None]
+    lines = [f"# {title} {run_id}", "",
+             f"**{len(act)} of {len(ranked)} loops need action.** "
+             f"[Open the report](file://{paths['report']})", "",
+             "| verdict | loops |", "|---|---|",
+             *(f"| {v} | {n} |" for v, n in count_verdicts(r.verdict for r in ranked).items()), ""]
+    if new_faults:
+        lines += [f"New since the last complete run: {', '.join(new_faults)}", ""]
+    if act:
+        lines += ["| rank | loop | verdict | confidence |", "|---|---|---|---|",
+                  *(f"| {r.rank} | {r.loop} | {r.verdict} | {r.confidence:.2f} |"
+                    for r in act[:20]), ""]
+    lines += [f"- report: `{paths['report']}`", f"- work orders: `{paths['work_orders']}`",
+              f"- verdicts: `{paths['verdicts']}`"]
+    return "\n".join(lines)
