@@ -9,7 +9,15 @@ one call::
     >>> from valvediag import valves
     >>> op = np.r_[np.linspace(0, 10, 11), np.linspace(9, 0, 10)]
     >>> valves.kano(op, S=4.0, J=2.0)            # one valve
+    array([0., 0., 0., 2., 3., 4., 5., 6., 7., 8., 9., 9., 9., 9., 9., 6., 5.,
+           4., 3., 2., 1.])
     >>> valves.kano(np.tile(op, (3, 1)), S=[2, 4, 6], J=[1, 2, 3])  # three
+    array([[0. , 0. , 1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5, 8.5, 9.5, 9.5, 9.5,
+            7.5, 6.5, 5.5, 4.5, 3.5, 2.5, 1.5, 0.5],
+           [0. , 0. , 0. , 2. , 3. , 4. , 5. , 6. , 7. , 8. , 9. , 9. , 9. ,
+            9. , 9. , 6. , 5. , 4. , 3. , 2. , 1. ],
+           [0. , 0. , 0. , 0. , 2.5, 3.5, 4.5, 5.5, 6.5, 7.5, 8.5, 8.5, 8.5,
+            8.5, 8.5, 8.5, 8.5, 4.5, 3.5, 2.5, 1.5]])
 
 All inputs and outputs are in the same unit, usually percent of valve travel.
 No clipping to 0-100 % is applied (some published code does that; real OP

@@ -10,16 +10,33 @@ The loop model is a chain of named, swappable effects (as pvlib's
        -> plant input minus load (bias, drift) -> plant (integrating or
           self-regulating) -> PV
 
-Typical use::
+Typical use, here on a simulated loop with a loose valve (dead band 3) and a
+dead time of 10 s that the first model lacks::
 
-    >>> from valvediag.workbench import prepare_loop, LoopModel, suggest_effects
+    >>> from valvediag import simulate_loop
+    >>> sim = simulate_loop(kc=2.0, ti=60.0, tau=60.0, sample_time=1.0, duration=3600,
+    ...                     sp_step=1.0, valve="backlash", valve_params={"DB": 3.0},
+    ...                     dead_time=10.0, noise_std=0.005, seed=1)
+    >>> pv, op = sim.pv, sim.op                         # or a measured record
+    >>> from valvediag.workbench import prepare_loop, LoopModel, suggest_effects, forward_select
     >>> data = prepare_loop(pv, op, sample_time=1.0)
     >>> fit = LoopModel(("deadband",)).fit(data)       # ModelFit, .plot(), .plot_chain()
     >>> fit.diagnose().plot("ccf")                      # where it fails (Diagnosis)
+    <Axes: title={'center': 'residual-OP cross-correlation (99 % band)'}, ...>
     >>> sug = suggest_effects(fit)                      # which effect is missing
     >>> print(sug.table()); sug.best.effect
+    model         fit %  held-out RMSE       BIC  evidence
+    deadband       97.0       0.008979  -17002.6  (base)
+    + dead_time    98.3       0.005045  -19392.3  accepted; residual-OP cross-correlation ...
+    + lag          98.3       0.005083  -19334.4  accepted; residual vs OP rate ...
+    ...
+    'dead_time'
     >>> ladder = forward_select(data, ("deadband",))    # add, refit, repeat
     >>> ladder.plot(); print(ladder.table())
+    <Axes: title={'center': 'error ladder'}, ylabel='held-out RMSE [PV]'>
+    step model               k  fit %  held-out RMSE       BIC  parameters
+    0    deadband            2   97.0       0.008979  -17002.6  gain=0.03201, DB=3.817
+    1    deadband+dead_time  3   98.3       0.005045  -19392.3  gain=0.01667, DB=3, dead_time=9.983
 
 The PV prediction is a free simulation re-initialised every ``horizon``
 samples (to the best initial state of each segment), fitted on alternating

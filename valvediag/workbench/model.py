@@ -4,14 +4,24 @@ The loop model (named, swappable effects) and its fitted result.
 :class:`LoopModel` is the workbench's ``ModelChain``: it only orchestrates.
 Each physical step is a named effect from :data:`~valvediag.workbench.EFFECTS`;
 the model is driven by the measured OP and predicts the PV. Every
-intermediate signal is kept in the frozen :class:`ModelFit`::
+intermediate signal is kept in the frozen :class:`ModelFit`. Here on a
+simulated loop (a loose valve of dead band 3, a dead time of 10 s, an
+integrating process of gain 1/60)::
 
+    >>> from valvediag import simulate_loop
+    >>> sim = simulate_loop(kc=2.0, ti=60.0, tau=60.0, sample_time=1.0, duration=3600,
+    ...                     sp_step=1.0, valve="backlash", valve_params={"DB": 3.0},
+    ...                     dead_time=10.0, noise_std=0.005, seed=1)
+    >>> pv, op = sim.pv, sim.op                   # or a measured record
     >>> from valvediag.workbench import LoopModel, prepare_loop
     >>> data = prepare_loop(pv, op, sample_time=1.0)
     >>> fit = LoopModel(("deadband", "dead_time")).fit(data)
     >>> fit.params, fit.fit_pct, fit.heldout_rmse, fit.bic
+    ({'gain': 0.01667..., 'DB': 2.9999..., 'dead_time': 9.983...}, 98.31..., 0.005045..., -19392.2...)
     >>> fit.plot()                 # measured vs model, held-out blocks shaded
+    <Axes: title={'center': 'measured vs model (held-out blocks shaded; ...'}, ...>
     >>> fit.plot_chain()           # OP -> valve -> delayed -> lagged -> input -> PV
+    [<Axes: ylabel='OP unit'>, <Axes: ylabel='OP unit'>, <Axes: xlabel='time [s]', ylabel='PV'>]
 """
 from __future__ import annotations
 
