@@ -5,7 +5,6 @@ import json
 from pathlib import Path
 
 from ..paper.tables import reproduce_paper
-from ..progress import ProgressBar
 from . import CommandError
 
 HELP = """\
@@ -31,8 +30,10 @@ def run(args) -> int:
         target = Path(args.json)
         if target.parent and not target.parent.exists():
             raise CommandError(f"cannot write {target}: directory {target.parent} does not exist")
-    bar = ProgressBar("simulating scenarios", enabled=not args.quiet)
-    res = reproduce_paper(args.method, progress=bar)
+    from .progress import progress_bar
+
+    with progress_bar("simulating scenarios", enabled=not args.quiet) as bar:
+        res = reproduce_paper(args.method, progress=bar)
     print(res.report())
     if args.json:
         Path(args.json).write_text(json.dumps(res.to_json(), indent=2) + "\n")

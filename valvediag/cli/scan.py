@@ -41,6 +41,10 @@ examples:
 """
 
 
+# what the progress display calls the flow's stages (valvediag.pipelines.nightly.progress_to)
+STAGE_LABELS = {"ingest": "ingesting exports", "analyse": "analysing loops"}
+
+
 def register(sub):
     p = sub.add_parser("scan", help="scan a plant's loops from historian exports (the nightly "
                                     "flow, run locally)",
@@ -163,22 +167,6 @@ def _check_store(db: str, wait: float = 0.0) -> None:
                            ) from None
 
 
-class _StageProgress:
-    """One :class:`~valvediag.progress.ProgressBar` per flow stage."""
-
-    LABELS = {"ingest": "ingesting exports", "analyse": "analysing loops"}
-
-    def __init__(self):
-        self.bars = {}
-
-    def __call__(self, stage: str, done: int, total: int) -> None:
-        from ..progress import ProgressBar
-
-        if stage not in self.bars:
-            self.bars[stage] = ProgressBar(self.LABELS.get(stage, stage))
-        self.bars[stage](done, total)
-
-
 @contextlib.contextmanager
 def _api_for_workers(args):
     """Without PREFECT_API_URL, give Dask workers one temporary Prefect server to report to.
@@ -225,12 +213,14 @@ def run(args) -> int:
     from valvediag.pipelines.nightly import nightly_scan, progress_to
 
     from ..store.lock import ScanLock, ScanLockedError
+    from .progress import StageProgress
 
     try:    # held around the flow (which takes it again), so a scan started at the same
         lock = ScanLock(args.db, timeout=args.wait).acquire()   # time fails here, in one line
     except ScanLockedError as exc:
         raise CommandError(str(exc)) from None
-    with lock, progress_to(_StageProgress()), _api_for_workers(args):
+    stages = StageProgress(STAGE_LABELS)
+    with lock, stages, progress_to(stages), _api_for_workers(args):
         state = nightly_scan(exports=exports, loops=args.loops, db=args.db, out=args.out,
                              window_hours=config.window_hours, method=config.method,
                              min_cycles=config.min_cycles, timezone=config.timezone,

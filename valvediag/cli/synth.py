@@ -68,14 +68,14 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..progress import ProgressBar
     from ..synth.plant import synth_plant
+    from .progress import progress_bar
 
-    bar = ProgressBar("synth-plant", enabled=not (args.quiet or args.json))
     try:
-        plant = synth_plant(args.loops, args.days, args.sample_time, args.out, seed=args.seed,
-                            formats=tuple(args.formats), start=args.start,
-                            timezone=args.timezone, progress=bar)
+        with progress_bar("synth-plant", enabled=not (args.quiet or args.json)) as bar:
+            plant = synth_plant(args.loops, args.days, args.sample_time, args.out,
+                                seed=args.seed, formats=tuple(args.formats), start=args.start,
+                                timezone=args.timezone, progress=bar)
     except ValueError as exc:
         raise CommandError(" ".join(str(exc).split())) from None
     except OSError as exc:
