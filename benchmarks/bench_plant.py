@@ -176,7 +176,6 @@ def _child(spec_path: str) -> None:
     from prefect.logging.handlers import APILogHandler
     from prefect.server.api.server import SubprocessASGIServer
     from prefect.settings import PREFECT_API_URL, temporary_settings
-
     from valvediag.pipelines.nightly import nightly_scan, progress_to
 
     events: list[tuple[str, int, int, float]] = []

@@ -68,6 +68,7 @@ from prefect.artifacts import create_markdown_artifact, create_table_artifact
 from prefect.cache_policies import NO_CACHE
 from prefect.task_runners import ThreadPoolTaskRunner
 from prefect.utilities.annotations import quote, unmapped
+from valvediag.pipelines import runners
 
 from valvediag.io.exports import expand_paths
 from valvediag.io.registry import LoopSpec, read_loops_csv
@@ -75,14 +76,24 @@ from valvediag.report.artifacts import ranked_table, run_summary_markdown
 from valvediag.report.outputs import write_outputs
 from valvediag.scan.loop import analyse_loop, analyse_stored_loops
 from valvediag.scan.plant import rank_results
-from valvediag.scan.run import (ScanSteps, discard_partitions, execute_scan, fail_run,
-                                finish_run, ingest_step, persist_run, plan_run)
+from valvediag.scan.run import (
+    ScanSteps,
+    discard_partitions,
+    execute_scan,
+    fail_run,
+    finish_run,
+    ingest_step,
+    persist_run,
+    plan_run,
+)
 from valvediag.scan.types import LoopJob, LoopResult, ScanConfig
 from valvediag.store.database import Store, StoreLockedError
-from valvediag.store.partitions import export_partitions, load_partition_frames, partition_dir
+from valvediag.store.partitions import (
+    export_partitions,
+    load_partition_frames,
+    partition_dir,
+)
 from valvediag.verdicts import count_verdicts
-
-from valvediag.pipelines import runners
 
 __all__ = ["nightly_scan", "progress_to", "FLOW_NAME", "TABLE_ARTIFACT_KEY",
            "REPORT_ARTIFACT_KEY", "TABLE_ARTIFACT_MAX_ROWS"]

@@ -128,7 +128,11 @@ def _api_for_processes() -> Iterator[None]:
     server it started in a subprocess; a worker process would try to start
     its own (and time out). Its address is handed to the workers here.
     """
-    from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
+    from prefect.settings import (
+        PREFECT_API_URL,
+        get_current_settings,
+        temporary_settings,
+    )
 
     if get_current_settings().api.url:
         yield

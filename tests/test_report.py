@@ -21,7 +21,7 @@ from valvediag.report.html import render_report
 from valvediag.report.svg import history_svg, sparkline_svg
 from valvediag.scan.loop import analyse_loop
 from valvediag.scan.plant import rank_results
-from valvediag.scan.types import SPARK_BUCKETS, TREND_BUCKETS, LoopJob, _reduce
+from valvediag.scan.types import SPARK_BUCKETS, TREND_BUCKETS, LoopJob, reduce_to_buckets
 
 UTC = dt.timezone.utc
 T0 = dt.datetime(2026, 1, 1, tzinfo=UTC)
@@ -85,10 +85,10 @@ def test_scan_keeps_plot_data_only_where_the_report_needs_it(loops):
 
 def test_trend_keeps_each_buckets_extremes_in_time_order():
     y = np.array([0, 5, -3, 1, 2, 9, 9, 8, np.nan, np.nan, np.nan, np.nan, 4.0])
-    r = _reduce(y, 4)                                     # buckets of 4 points
+    r = reduce_to_buckets(y, 4)                                     # buckets of 4 points
     assert r.tolist()[:4] == [5, -3, 2, 9]                # max before min, then min before max
     assert np.isnan(r[4:6]).all() and r[6:].tolist() == [4, 4]
-    small = _reduce(np.arange(5.0), 10)                   # fewer points than buckets: as is
+    small = reduce_to_buckets(np.arange(5.0), 10)                   # fewer points than buckets: as is
     assert small.tolist() == [0, 1, 2, 3, 4]
 
 

@@ -1,7 +1,7 @@
 """Keep numba's on-disk cache consistent with the package's sources.
 
 Numba keys a cached function on its own file only: a kernel in ``paper.py``
-that calls ``bi._robust_core`` keeps its stale machine code after
+that calls ``bi.robust_bi_kernel`` keeps its stale machine code after
 ``bi.py`` changes. We therefore point numba at a cache directory named after a
 hash of every module that holds compiled code, so that an edit to any of them
 invalidates all kernels.

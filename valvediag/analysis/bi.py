@@ -64,7 +64,13 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from .oscillation import _apices, _linear_detrend, _runs, acf_period, segment_cycles
+from .oscillation import (
+    acf_period,
+    hysteresis_runs,
+    linear_detrend,
+    run_apices,
+    segment_cycles,
+)
 
 __all__ = ["backlash_index", "BacklashIndex", "THRESHOLDS", "bi_verdict"]
 
@@ -86,7 +92,8 @@ MAX_APEX = 80
 #: are subsampled to this.
 WORK_SPP = 48.0
 
-_ANGLE_UNIT = 100.0  # time unit = period / 100
+#: Time unit of the angles: the period divided by this [-].
+ANGLE_UNIT = 100.0
 
 
 @numba.njit(cache=True, inline="always")
@@ -115,7 +122,7 @@ def _mid_crossings(y, ai):
 
 
 @numba.njit(cache=True, nogil=True)
-def _paper_core(x, period_hint):
+def paper_bi_kernel(x, period_hint):
     """Literal BI. Returns (bi, period, a_pp, apex_idx, apex_sign, theta_peak,
     mid_idx, theta_mid)."""
     y, ai, asg, P, dur, band = segment_cycles(x, period_hint, False)
@@ -128,7 +135,7 @@ def _paper_core(x, period_hint):
     for j in range(ai.size - 1):
         app += abs(y[ai[j + 1]] - y[ai[j]])
     app /= ai.size - 1
-    unit = app / (P / _ANGLE_UNIT)  # PV per sample, in amplitude per P/100
+    unit = app / (P / ANGLE_UNIT)  # PV per sample, in amplitude per P/100
     thp = np.full(ai.size, np.nan)
     for j in range(ai.size):
         k = ai[j]
@@ -403,7 +410,7 @@ def _model_apex(y0, m, b, c, w, lo, hi):
 
 
 @numba.njit(cache=True, nogil=True)
-def _robust_core(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
+def robust_bi_kernel(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
     """Robust BI. ``w_grid`` holds the rounding widths searched [fraction of
     the period]. Returns (bi, period, a_pp, w_rel, apex_idx, apex_sign,
     theta_peak, apex_pos, mid_idx, theta_mid, apex_par, w_samples, decim)."""
@@ -420,8 +427,8 @@ def _robust_core(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
         r = int(P // WORK_SPP)
     if r > 1:
         yd = y[::r].copy()
-        st, sg = _runs(yd, band)
-        ai, asg = _apices(yd, st, sg)
+        st, sg = hysteresis_runs(yd, band)
+        ai, asg = run_apices(yd, st, sg)
         Pd = P / r
     else:
         yd = y
@@ -496,7 +503,7 @@ def _robust_core(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
             wbest = wi_t
             par = par_t
     w = wgrid[wbest]
-    unit = app / (Pd / _ANGLE_UNIT)
+    unit = app / (Pd / ANGLE_UNIT)
     delta = Pd / nref
     thp = np.full(ai.size, np.nan)
     apos = np.full(ai.size, np.nan)
@@ -617,6 +624,10 @@ class BacklashIndex:
         The analysed record [PV unit].
     sample_time : float
         [s]
+    apex_index : numpy.ndarray of int or None
+        Sample index of each apex that ``theta_peak`` measures (peaks and
+        valleys interleaved); None when they are ``peaks`` and ``valleys``
+        in time order (see :attr:`apex_indices`).
     """
 
     bi: float
@@ -637,10 +648,17 @@ class BacklashIndex:
     reason: str
     pv: np.ndarray = field(repr=False)
     sample_time: float = 1.0
-    _apex_idx: np.ndarray = field(default=None, repr=False)
+    apex_index: np.ndarray = field(default=None, repr=False)
     _apex_fit: np.ndarray = field(default=None, repr=False)
     _fit_width: float = field(default=np.nan, repr=False)
     _decimation: int = field(default=1, repr=False)
+
+    @property
+    def apex_indices(self) -> np.ndarray:
+        """Sample index of each apex, in the order of ``theta_peak``."""
+        if self.apex_index is not None:
+            return np.asarray(self.apex_index)
+        return np.sort(np.r_[self.peaks, self.valleys])
 
     def plot(self, ax=None, *, zoom_cycles: float | None = None):
         """Plot the PV with the peaks, valleys, middle points and the angles.
@@ -675,9 +693,9 @@ class BacklashIndex:
         # angle evidence: the measured slopes drawn as short segments
         if np.isfinite(self.period) and self.amplitude > 0:
             app = 2 * self.amplitude
-            unit = app / (self.period / _ANGLE_UNIT)   # PV per second
+            unit = app / (self.period / ANGLE_UNIT)   # PV per second
             seg = 0.06 * self.period
-            ai = self._apex_idx if self._apex_idx is not None else np.sort(np.r_[self.peaks, self.valleys])
+            ai = self.apex_indices
             for j, k in enumerate(ai):
                 if not (lo <= k < hi) or j >= self.theta_peak.size or not np.isfinite(self.theta_peak[j]):
                     continue
@@ -786,18 +804,18 @@ def backlash_index(pv, sample_time=None, *, time=None, method: str = "robust",
     h = _check_time(x, sample_time, time)
     thr = tuple(thresholds) if thresholds is not None else THRESHOLDS[method]
     x = np.ascontiguousarray(x)
-    hint, _ = acf_period(_linear_detrend(x)) if method == "robust" else (0.0, 0.0)
+    hint, _ = acf_period(linear_detrend(x)) if method == "robust" else (0.0, 0.0)
     hint = hint if np.isfinite(hint) else 0.0
     apos = apar = None
     wfit = np.nan
     decim = 1
     if method == "paper":
-        bi, P, app, ai, asg, thp, mid, thm = _paper_core(x, 0.0)
+        bi, P, app, ai, asg, thp, mid, thm = paper_bi_kernel(x, 0.0)
         rounding = np.nan
         apos = ai.astype(float)
     else:
         (bi, P, app, rounding, ai, asg, thp, apos, mid, thm, apar, wfit,
-         decim) = _robust_core(x, hint, NREF, W_GRID)
+         decim) = robust_bi_kernel(x, hint, NREF, W_GRID)
     cycles = max(0.0, (ai.size - 1) / 2.0)
     reason = ""
     if not np.isfinite(P) or ai.size < 3 or thp.size == 0 or not np.any(np.isfinite(thp)) \
@@ -820,4 +838,4 @@ def backlash_index(pv, sample_time=None, *, time=None, method: str = "robust",
         bi_per_cycle=per_cycle, cycles=cycles, period=float(P) * h,
         amplitude=float(app) / 2 if np.isfinite(app) else np.nan,
         rounding=float(rounding), reason=reason, pv=x, sample_time=h,
-        _apex_idx=ai.copy(), _apex_fit=apar, _fit_width=float(wfit), _decimation=int(decim))
+        apex_index=ai.copy(), _apex_fit=apar, _fit_width=float(wfit), _decimation=int(decim))

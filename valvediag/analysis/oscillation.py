@@ -32,7 +32,8 @@ BAND_FRACTION = 0.2
 
 
 @numba.njit(cache=True, nogil=True)
-def _linear_detrend(x):
+def linear_detrend(x):
+    """``x`` minus its least-squares straight line (compiled; shared by the BI kernels)."""
     n = x.size
     tm = 0.5 * (n - 1)
     xm = x.mean()
@@ -98,7 +99,7 @@ def _half_range(y):
 
 
 @numba.njit(cache=True, nogil=True)
-def _runs(y, band):
+def hysteresis_runs(y, band):
     """Start index and sign of each run beyond the hysteresis band."""
     n = y.size
     starts = np.empty(n, dtype=np.int64)
@@ -120,7 +121,7 @@ def _runs(y, band):
 
 
 @numba.njit(cache=True, nogil=True)
-def _apices(y, starts, signs):
+def run_apices(y, starts, signs):
     """Index of the extreme of every complete run (between two run starts).
 
     A run is complete when the signal entered it from the opposite side of the
@@ -188,24 +189,24 @@ def segment_cycles(x, period_hint, remove_drift):
     """
     n = x.size
     if remove_drift:
-        y = _linear_detrend(x)
+        y = linear_detrend(x)
     else:
         y = x - x.mean()
     P = period_hint
     if remove_drift:
         if P <= 1.0:
             band = BAND_FRACTION * _half_range(y)
-            st, sg = _runs(y, band)
+            st, sg = hysteresis_runs(y, band)
             d = _cycle_durations(st, sg)
             if d.size > 0:
                 P = np.median(d)
         if P > 1.0 and P < n:
             y = x - _baseline(x, int(round(P)))
     band = BAND_FRACTION * _half_range(y)
-    st, sg = _runs(y, band)
+    st, sg = hysteresis_runs(y, band)
     d = _cycle_durations(st, sg)
     period = np.median(d) if d.size > 0 else np.nan
-    ai, asg = _apices(y, st, sg)
+    ai, asg = run_apices(y, st, sg)
     return y, ai, asg, period, d, band
 
 
@@ -469,7 +470,7 @@ def detect_oscillation(pv, sample_time: float, *, remove_drift: bool = True) -> 
     (see Thornhill et al. 2003 for that).
     """
     x = np.ascontiguousarray(pv, dtype=float)
-    hint, acf_peak = acf_period(_linear_detrend(x))
+    hint, acf_peak = acf_period(linear_detrend(x))
     y, ai, asg, per, dur, _ = segment_cycles(x, hint if np.isfinite(hint) else 0.0, remove_drift)
     reg = acf_regularity(y)
     amps = np.abs(np.diff(y[ai])) / 2 if ai.size >= 2 else np.array([np.nan])

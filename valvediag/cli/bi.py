@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import json
-import math
 
 from ..analysis.classify import classify_loop
 from ..io.loopfile import LoopFileError, read_loop_csv
+from ..plain import finite_or_none
 
 HELP = """\
 Classify one or more single-loop CSV files (columns timestamp,pv,op[,sp,mv];
@@ -37,10 +37,6 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def _num(x, nd=4):
-    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else round(float(x), nd)
-
-
 def classify_file(path, *, method="robust", process_type="integrating", min_cycles=3.0,
                   columns=None) -> dict:
     """Verdict for one file as the JSON object of ``valvediag bi --json``."""
@@ -54,8 +50,8 @@ def classify_file(path, *, method="robust", process_type="integrating", min_cycl
     reason = d.reason
     if meta["non_numeric"]:
         reason += "; non-numeric values ignored: " + ", ".join(f"{k} {v}" for k, v in meta["non_numeric"].items())
-    return {"file": str(path), "verdict": d.verdict, "bi": _num(d.bi, 3), "cycles": _num(d.cycles, 1),
-            "period_s": _num(d.period, 4), "confidence": _num(d.confidence, 2), "reason": reason}
+    return {"file": str(path), "verdict": d.verdict, "bi": finite_or_none(d.bi, 3), "cycles": finite_or_none(d.cycles, 1),
+            "period_s": finite_or_none(d.period, 4), "confidence": finite_or_none(d.confidence, 2), "reason": reason}
 
 
 def run(args) -> int:

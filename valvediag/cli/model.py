@@ -2,9 +2,9 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
+from ..plain import finite_or_none
 from . import CommandError
 
 HELP = """\
@@ -86,13 +86,6 @@ def _no_sub(p) -> int:
     return 0
 
 
-def _num(x, nd=6):
-    if isinstance(x, str) or x is None:
-        return x
-    x = float(x)
-    return round(x, nd) if math.isfinite(x) else None
-
-
 def _load(args):
     """Read FILE and prepare it; one-line errors naming the file."""
     from ..io.loopfile import LoopFileError, read_loop_csv
@@ -125,11 +118,12 @@ def run_fit(args) -> int:
     if args.json:
         doc = {"file": str(args.file), **fit.to_dict(),
                "units": dict(fit.units),
-               "derived": {k: _num(v) for k, v in fit.derived.items()},
-               "fit_pct_train": _num(fit.fit_pct_train), "train_rmse": _num(fit.train_rmse),
+               "derived": {k: finite_or_none(v, 6) for k, v in fit.derived.items()},
+               "fit_pct_train": finite_or_none(fit.fit_pct_train, 6),
+               "train_rmse": finite_or_none(fit.train_rmse, 6),
                "n_params": fit.n_params, "horizon": data.horizon,
                "sample_time": data.sample_time}
-        doc["params"] = {k: _num(v) for k, v in fit.params.items()}
+        doc["params"] = {k: finite_or_none(v, 6) for k, v in fit.params.items()}
         print(json.dumps(doc, indent=2))
         return 0
     print(f"{args.file}")

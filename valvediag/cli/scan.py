@@ -16,6 +16,7 @@ import sys
 import zoneinfo
 from pathlib import Path
 
+from ..plain import one_line
 from . import CommandError
 
 HELP = """\
@@ -141,62 +142,39 @@ def _check_inputs(args):
     if args.dask_address and "://" not in args.dask_address:
         raise CommandError(f"--dask-address {args.dask_address}: give the scheduler's address "
                            f"with its protocol, e.g. tcp://10.0.0.5:8786")
-    _check_store(args.db, args.wait)
+    if Path(args.db).is_dir():
+        raise CommandError(f"--db {args.db}: is a directory; give a file such as "
+                           f"{args.db}/valvediag.duckdb")
     return list(args.exports), config
 
 
-def _check_store(db: str, wait: float = 0.0) -> None:
-    """Fail early, in one line, when another scan holds the store (after waiting up to
-    ``wait`` seconds) or it cannot be opened for writing."""
+@contextlib.contextmanager
+def _scan_lock(db: str, wait: float):
+    """The store's scan lock, taken once, here, by the process that runs the scan (the
+    flow inside shares it); then a check that the store opens for writing. Either
+    failing is one line."""
     import duckdb
 
     from ..store.database import Store, StoreLockedError
     from ..store.lock import ScanLock
 
     path = Path(db)
-    if path.is_dir():
-        raise CommandError(f"--db {db}: is a directory; give a file such as {db}/valvediag.duckdb")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        with ScanLock(path, timeout=wait):   # the flow takes it again (and waits again)
-            Store(path).close()
+        lock = ScanLock(path, timeout=wait).acquire()
     except StoreLockedError as exc:
         raise CommandError(str(exc)) from None
-    except (duckdb.Error, OSError) as exc:
-        raise CommandError(f"--db {db}: cannot open the store: {' '.join(str(exc).split())}"
-                           ) from None
-
-
-@contextlib.contextmanager
-def _api_for_workers(args):
-    """Without PREFECT_API_URL, give Dask workers one temporary Prefect server to report to.
-
-    Prefect would otherwise start a temporary server in every worker process
-    (slow, and each on the same SQLite file). The server is started once here
-    and stopped after the run.
-    """
-    if not (args.workers or args.dask_address) or os.environ.get("PREFECT_API_URL"):
+    except OSError as exc:
+        raise CommandError(f"--db {db}: {' '.join(str(exc).split())}") from None
+    with lock:
+        try:
+            Store(path).close()
+        except StoreLockedError as exc:
+            raise CommandError(str(exc)) from None
+        except (duckdb.Error, OSError) as exc:
+            raise CommandError(f"--db {db}: cannot open the store: "
+                               f"{' '.join(str(exc).split())}") from None
         yield
-        return
-    from prefect.server.api.server import SubprocessASGIServer
-    from prefect.settings import PREFECT_API_URL, temporary_settings
-
-    server = SubprocessASGIServer()
-    server.start(timeout=180)
-    os.environ["PREFECT_API_URL"] = server.api_url     # for the worker processes
-    try:
-        with temporary_settings(updates={PREFECT_API_URL: server.api_url}):
-            yield
-    finally:
-        from prefect.logging.handlers import APILogHandler
-
-        APILogHandler().flush()  # the run's last log lines, before the server goes
-        os.environ.pop("PREFECT_API_URL", None)
-        server.stop()
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def run(args) -> int:
@@ -211,16 +189,13 @@ def run(args) -> int:
         # warnings of the run are printed below, once
         os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "ERROR")
     from valvediag.pipelines.nightly import nightly_scan, progress_to
+    from valvediag.pipelines.runners import temporary_api_for_workers
 
-    from ..store.lock import ScanLock, ScanLockedError
     from .progress import StageProgress
 
-    try:    # held around the flow (which takes it again), so a scan started at the same
-        lock = ScanLock(args.db, timeout=args.wait).acquire()   # time fails here, in one line
-    except ScanLockedError as exc:
-        raise CommandError(str(exc)) from None
     stages = StageProgress(STAGE_LABELS)
-    with lock, stages, progress_to(stages), _api_for_workers(args):
+    with _scan_lock(args.db, args.wait), stages, progress_to(stages), \
+            temporary_api_for_workers(bool(args.workers or args.dask_address)):
         state = nightly_scan(exports=exports, loops=args.loops, db=args.db, out=args.out,
                              window_hours=config.window_hours, method=config.method,
                              min_cycles=config.min_cycles, timezone=config.timezone,
@@ -230,7 +205,7 @@ def run(args) -> int:
                              return_state=True)
     if not state.is_completed():
         exc = state.result(raise_on_failure=False)
-        detail = _one_line(exc) if isinstance(exc, BaseException) else (state.message or state.name)
+        detail = one_line(exc) if isinstance(exc, BaseException) else (state.message or state.name)
         raise CommandError(f"the scan failed: {detail}")
     summary = state.result()
     if args.json:

@@ -5,6 +5,7 @@ import argparse
 import json
 import sys
 
+from ..plain import one_line
 from . import CommandError
 
 DESCRIPTION = """\
@@ -77,7 +78,7 @@ def run(args) -> int:
                                 seed=args.seed, formats=tuple(args.formats), start=args.start,
                                 timezone=args.timezone, progress=bar)
     except ValueError as exc:
-        raise CommandError(" ".join(str(exc).split())) from None
+        raise CommandError(one_line(exc)) from None
     except OSError as exc:
         raise CommandError(f"{args.out}: {exc.strerror or exc}") from None
     counts = dict(plant.truth.group_by("truth_verdict").len().sort("truth_verdict").iter_rows())

@@ -89,6 +89,8 @@ from pathlib import Path
 
 import polars as pl
 
+from ..plain import first_line, one_line
+
 _log = logging.getLogger(__name__)
 
 __all__ = [
@@ -102,6 +104,8 @@ __all__ = [
     "file_sha256",
     "SAMPLE_SCHEMA",
     "QUARANTINE_SCHEMA",
+    "FATAL_ERRORS",
+    "check_timezone",
 ]
 
 #: Known state texts (lower case). A value equal to one of them (ignoring case
@@ -328,7 +332,19 @@ def _epoch_reason(sec: pl.Expr, text: pl.Expr) -> pl.Expr:
             .then(pl.format("epoch value {} is before 1900 (not epoch seconds?)", text)))
 
 
-def _check_timezone(timezone: str | None) -> None:
+def check_timezone(timezone: str | None) -> None:
+    """Refuse a time zone name that is not an IANA zone, in one line.
+
+    Parameters
+    ----------
+    timezone : str or None
+        IANA name such as ``Europe/Berlin``; None passes.
+
+    Raises
+    ------
+    ValueError
+        An unknown zone.
+    """
     if timezone is None:
         return
     try:
@@ -590,7 +606,7 @@ def _sniff_separator(header: str) -> str:
 
 def _csv_problem(exc: csv.Error) -> str:
     """One-line reason for a line the csv module refuses."""
-    text = " ".join(str(exc).split())
+    text = one_line(exc)
     if "new-line character" in text:
         return "line break (bare CR) inside an unquoted field"
     if "field larger than field limit" in text:
@@ -862,7 +878,7 @@ def iter_export(path: str | os.PathLike, *, timezone: str | None = None,
     raw size, are bounded by ``chunk_rows``. "Time runs backwards" is
     detected within a slice.
     """
-    _check_timezone(timezone)
+    check_timezone(timezone)
     path = os.path.abspath(os.fspath(path))
     state_set = frozenset(s.strip().lower() for s in (DIGITAL_STATES if states is None else states))
     if not os.path.isfile(path):
@@ -978,12 +994,8 @@ def _parse_csv(path: str, timezone: str | None, states: frozenset[str],
 
 
 #: Exceptions that are never turned into a file's error: the process must stop.
-_FATAL = (KeyboardInterrupt, SystemExit, GeneratorExit, MemoryError)
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return " ".join(text.splitlines()[0].split()) if text else type(exc).__name__
+#: Errors that are never one file's problem: they stop the whole ingest.
+FATAL_ERRORS = (KeyboardInterrupt, SystemExit, GeneratorExit, MemoryError)
 
 
 def _read_parquet(path: str) -> pl.DataFrame:
@@ -991,15 +1003,15 @@ def _read_parquet(path: str) -> pl.DataFrame:
 
     A damaged file can make the Rust reader panic. The panic surfaces as
     ``pyo3_runtime.PanicException``, a ``BaseException``, so every exception
-    but the :data:`_FATAL` ones is a file error here. Any later read of the
+    but the :data:`FATAL_ERRORS` ones is a file error here. Any later read of the
     file (lazy or not) must be guarded the same way.
     """
     try:
         return pl.read_parquet(path)
-    except _FATAL:
+    except FATAL_ERRORS:
         raise
     except BaseException as exc:  # noqa: BLE001 - any reader failure, panics included
-        raise ExportError(f"{path}: not a readable Parquet file ({_first_line(exc)})") from None
+        raise ExportError(f"{path}: not a readable Parquet file ({first_line(exc)})") from None
 
 
 #: dtypes a Parquet tag, value or status column may have (besides numbers).

@@ -99,7 +99,7 @@ def process_matrices(process, process_gain, tau, lag, dead_time, sample_time):
 
 
 @numba.njit(cache=True)
-def _simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_sp,
+def simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_sp,
                   stop_reversals, rev_idx, pv_only=False):
     """Simulate one loop for up to ``n`` samples into the output buffers.
 
@@ -230,11 +230,11 @@ def _simulate_batch(P, phi_f, gam_f, phi_g, gam_g, n, pv, op, mv, sp):
     m = P.shape[0]
     dummy = np.empty(1, dtype=np.int64)
     for i in numba.prange(m):
-        _simulate_one(P[i], phi_f[i], gam_f[i], phi_g[i], gam_g[i], n,
+        simulate_one(P[i], phi_f[i], gam_f[i], phi_g[i], gam_g[i], n,
                       pv[i], op[i], mv[i], sp[i], 0, dummy)
 
 
-def _param_table(m, *, kc, ti, sample_time, valve, valve_params, process, process_gain, tau,
+def parameter_table(m, *, kc, ti, sample_time, valve, valve_params, process, process_gain, tau,
                  lag, dead_time, sp, sp_step, sp_step_time, load, load_step, load_step_time,
                  load_drift, load_sin_amplitude, load_sin_period, load_sin_phase, noise_std,
                  seed, op_limits, load_noise_std=0.0, valve_noise_band=0.0):
@@ -448,7 +448,7 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
     if not isinstance(valve, str):
         sizes.append(np.size(valve))
     m = max(sizes) if sizes else 1
-    P, phi_f, gam_f, phi_g, gam_g = _param_table(
+    P, phi_f, gam_f, phi_g, gam_g = parameter_table(
         m, kc=kc, ti=ti, sample_time=sample_time, valve=valve, valve_params=valve_params,
         process=process, process_gain=process_gain, tau=tau, lag=lag, dead_time=dead_time,
         sp=sp, sp_step=sp_step, sp_step_time=sp_step_time, load=load, load_step=load_step,

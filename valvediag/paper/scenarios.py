@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..analysis.oscillation import _linear_detrend, acf_period
+from ..analysis.oscillation import acf_period, linear_detrend
 from ..models.closedloop import simulate_loop
 from .tables import DB_GRID, JS_GRID, KC_GRID, S_GRID, TAU_GRID, TI_RATIO_GRID
 
@@ -71,7 +71,7 @@ class LoopCase:
 def _finish(kind, params, sim, cycles):
     pv = sim.pv
     x = pv[pv.size // 4:]
-    per, _ = acf_period(_linear_detrend(np.ascontiguousarray(x)))
+    per, _ = acf_period(linear_detrend(np.ascontiguousarray(x)))
     if not np.isfinite(per):
         return None
     P = per * FINE_STEP

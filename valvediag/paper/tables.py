@@ -41,8 +41,8 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from ..analysis.bi import NREF, THRESHOLDS, W_GRID, _paper_core, _robust_core
-from ..models.closedloop import C_NMAX, _param_table, _simulate_one
+from ..analysis.bi import NREF, THRESHOLDS, W_GRID, paper_bi_kernel, robust_bi_kernel
+from ..models.closedloop import C_NMAX, parameter_table, simulate_one
 
 __all__ = ["reproduce_paper", "PaperReproduction", "PAPER_RESULTS", "table1_grid",
            "table2_grid", "table3_grid", "run_grid"]
@@ -105,7 +105,7 @@ def _grid_kernel(P, phi_f, gam_f, phi_g, gam_g, rec_every, nmax, warm, total, do
         for i in range(blk, m, nblocks):
             n_i = int(P[i, C_NMAX])
             rev[:] = -1
-            used = _simulate_one(P[i], phi_f[i], gam_f[i], phi_g[i], gam_g[i], n_i,
+            used = simulate_one(P[i], phi_f[i], gam_f[i], phi_g[i], gam_g[i], n_i,
                                  pv, op, mv, sp, total, rev, True)
             start = rev[warm - 1] if rev[warm - 1] >= 0 else 0
             step = int(rec_every[i])
@@ -114,12 +114,12 @@ def _grid_kernel(P, phi_f, gam_f, phi_g, gam_g, rec_every, nmax, warm, total, do
             if rec.size < 16:
                 continue
             if do_paper:
-                bi, per, app, ai, asg, thp, mid, thm = _paper_core(rec, 0.0)
+                bi, per, app, ai, asg, thp, mid, thm = paper_bi_kernel(rec, 0.0)
                 out[i, 0] = bi
                 out[i, 2] = max(0.0, (ai.size - 1) / 2.0)
                 out[i, 3] = per
             if do_robust:
-                res = _robust_core(rec, 0.0, NREF, w_grid)
+                res = robust_bi_kernel(rec, 0.0, NREF, w_grid)
                 out[i, 1] = res[0]
                 out[i, 4] = res[3]
                 if not do_paper:
@@ -159,7 +159,7 @@ def run_grid(grid: dict, *, valve: str, sample_time, record_every=1, methods=("p
     """
     m = len(grid["kc"])
     vp = {"S": grid["S"], "J": grid["J"]} if valve == "kano" else {"DB": grid["DB"]}
-    P, phi_f, gam_f, phi_g, gam_g = _param_table(
+    P, phi_f, gam_f, phi_g, gam_g = parameter_table(
         m, kc=grid["kc"], ti=grid["ti"], sample_time=sample_time, valve=valve, valve_params=vp,
         process="integrating", process_gain=1.0, tau=grid["tau"], lag=0.0, dead_time=0.0,
         sp=0.0, sp_step=1.0, sp_step_time=0.0, load=0.0, load_step=0.0, load_step_time=0.0,

@@ -5,17 +5,13 @@ to its Prefect run as artifacts).
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 
+from ..plain import finite_or_none
 from ..scan.types import LoopResult
 from ..verdicts import count_verdicts
 
 __all__ = ["ranked_table", "run_summary_markdown"]
-
-
-def _num(x, digits: int = 4):
-    return None if x is None or not math.isfinite(x) else round(float(x), digits)
 
 
 def ranked_table(ranked: Sequence[LoopResult], max_rows: int) -> tuple[list[dict], str]:
@@ -37,8 +33,8 @@ def ranked_table(ranked: Sequence[LoopResult], max_rows: int) -> tuple[list[dict
     """
     rows = [{"rank": r.rank, "loop": r.loop, "verdict": r.verdict,
              "confidence": r.confidence, "severity": round(r.severity, 4),
-             "bi": _num(r.bi), "period_s": _num(r.period_s),
-             "amplitude_pct_span": _num(r.amplitude_pct_span), "reason": r.reason}
+             "bi": finite_or_none(r.bi, 4), "period_s": finite_or_none(r.period_s, 4),
+             "amplitude_pct_span": finite_or_none(r.amplitude_pct_span, 4), "reason": r.reason}
             for r in ranked[:max_rows]]
     shown = ("" if len(ranked) <= max_rows
              else f" (first {max_rows} of {len(ranked)}; the report has all)")

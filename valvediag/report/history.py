@@ -27,6 +27,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+from ..plain import one_line
 from ..verdicts import HEALTHY_VERDICTS, VALVE_NONLINEARITY
 
 __all__ = ["HistoryPoint", "LoopHistory", "PlantHistory", "plant_history", "fault_kind"]
@@ -156,7 +157,7 @@ class PlantHistory:
         return [k for k, h in self.loops.items() if h.status == status]
 
 
-def _num(x) -> float:
+def _float_or_nan(x) -> float:
     return float(x) if x is not None and isinstance(x, (int, float)) and math.isfinite(x) \
         else math.nan
 
@@ -206,7 +207,7 @@ def plant_history(results: Sequence, *, run_id: str, started_at: dt.datetime | N
             runs[row["run_id"]] = t
             by_loop.setdefault(row["loop"], []).append(HistoryPoint(
                 run_id=row["run_id"], started_at=t, verdict=row["verdict"],
-                bi=_num(row["bi"]), confidence=_num(row["confidence"])))
+                bi=_float_or_nan(row["bi"]), confidence=_float_or_nan(row["confidence"])))
     previous = None
     if runs:
         pid = max(runs, key=lambda k: (runs[k] or dt.datetime.min.replace(tzinfo=_UTC), k))
@@ -216,7 +217,7 @@ def plant_history(results: Sequence, *, run_id: str, started_at: dt.datetime | N
     for r in results:
         past = by_loop.get(r.loop, [])
         now = HistoryPoint(run_id=run_id, started_at=started_at, verdict=r.verdict,
-                           bi=_num(r.bi), confidence=_num(r.confidence), current=True)
+                           bi=_float_or_nan(r.bi), confidence=_float_or_nan(r.confidence), current=True)
         points = tuple(past) + (now,)
         kind = fault_kind(r.verdict)
         if kind is None:
@@ -285,7 +286,7 @@ def read_history(store, results: Sequence, *, run_id: str, started_at: dt.dateti
         with st:
             return compare(st)
     except (StoreLockedError, duckdb.Error, OSError) as exc:
-        why = " ".join(str(exc).split()) or type(exc).__name__
+        why = one_line(exc)
         name = os.fspath(store.path if isinstance(store, Store) else store)
         return plant_history(results, run_id=run_id, started_at=started_at,
                              error=f"the history in {name} could not be read: {why}")

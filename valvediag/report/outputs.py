@@ -47,7 +47,8 @@ from valvediag.report.explain import ACTIONS, size_text
 from valvediag.report.history import PlantHistory, plant_history, read_history
 from valvediag.report.html import REPORTS_DIR, loop_anchor, render_report
 
-from ..scan.types import LoopResult, _clean
+from ..plain import to_plain
+from ..scan.types import LoopResult
 from ..verdicts import ACTION_VERDICTS
 
 __all__ = ["write_outputs", "write_verdicts_json", "write_work_orders", "write_work_orders_json",
@@ -91,10 +92,10 @@ def write_verdicts_json(results: Sequence[LoopResult], path, *, run_id: str) -> 
     """
     loops = []
     for r in results:      # only the keys written: to_json() would clean the evidence too
-        d = _clean({k: getattr(r, k, None) for k in VERDICT_KEYS})
+        d = to_plain({k: getattr(r, k, None) for k in VERDICT_KEYS})
         loops.append({k: _sig(d.get(k)) for k in VERDICT_KEYS})
     path = Path(path)
-    path.write_text(json.dumps({"run_id": run_id, "loops": _clean(loops)}, indent=1,
+    path.write_text(json.dumps({"run_id": run_id, "loops": to_plain(loops)}, indent=1,
                                allow_nan=False, ensure_ascii=False) + "\n", encoding="utf-8")
     return path
 
@@ -202,7 +203,7 @@ def write_work_orders_json(results: Sequence[LoopResult], path, *, run_id: str,
             for o in work_orders(results, history, report_name=report_name, run_id=run_id)]
     doc = {"run_id": run_id,
            "generated": _iso(history.started_at) if history is not None else "",
-           "report": report_name, "work_orders": _clean(rows)}
+           "report": report_name, "work_orders": to_plain(rows)}
     path = Path(path)
     path.write_text(json.dumps(doc, indent=1, allow_nan=False, ensure_ascii=False) + "\n",
                     encoding="utf-8")

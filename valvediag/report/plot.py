@@ -32,6 +32,8 @@ import math
 import numpy as np
 from markupsafe import escape
 
+from ..analysis.bi import ANGLE_UNIT
+
 __all__ = ["loop_svg", "WIDTH", "HEIGHT"]
 
 #: Size of the figure [CSS px] (10 x 6.8 in at 72 dpi, as the matplotlib figure).
@@ -400,10 +402,93 @@ def _date_axis(panel: _Panel, start: dt.datetime):
 
 
 def _clock_axis(panel: _Panel, start: dt.datetime | None, seconds: bool):
-    from .figures import _clock
+    f = _clock_label(start, seconds)
+    panel.xfmt = lambda v: [f(x) for x in v]
 
-    f = _clock(start, seconds)
-    panel.xfmt = lambda v: [f(x, None) for x in v]
+
+# ----------------------------------------------------------------- evidence windows
+def _clock_label(start: dt.datetime | None, seconds: bool = False):
+    """Tick label of seconds since ``start``: UTC clock time, or minutes without a start."""
+    if start is None:
+        return lambda x: f"{x / 60:.0f} min"
+    fmt = "%H:%M:%S" if seconds else "%H:%M"
+    return lambda x: (start + dt.timedelta(seconds=float(x))).strftime(fmt)
+
+
+def _zoom_span(n: int, period_samples: float, cycles: float) -> tuple[int, int]:
+    if not (math.isfinite(period_samples) and period_samples > 0):
+        return 0, n
+    span = int(cycles * period_samples)
+    c = n // 2
+    return max(0, c - span // 2), min(n, c + span // 2)
+
+
+def _evidence_window(bres, cycles: float) -> tuple[int, int]:
+    """The stretch of ``cycles`` periods holding the most measured apices and middle points.
+
+    The robust Backlash Index measures a sample of the apices spread over the
+    record, so the middle of the record may show none; this picks the
+    stretch where the evidence is (ties: the one nearest the middle).
+    """
+    n = bres.pv.size
+    h = bres.sample_time
+    if not (math.isfinite(bres.period) and bres.period > 0):
+        return 0, n
+    span = max(8, int(cycles * bres.period / h))
+    if span >= n:
+        return 0, n
+    ai = bres.apex_indices
+    thp = np.asarray(bres.theta_peak, dtype=float)
+    thm = np.asarray(bres.theta_middle, dtype=float)
+    marks = np.sort(np.r_[ai[:thp.size][np.isfinite(thp[:ai.size])],
+                          np.asarray(bres.middle)[:thm.size][np.isfinite(thm[:len(bres.middle)])]])
+    if marks.size == 0:
+        c = n // 2
+        return max(0, c - span // 2), min(n, c + span // 2)
+    starts = np.clip(marks - span // 8, 0, n - span)
+    counts = np.searchsorted(marks, starts + span) - np.searchsorted(marks, starts)
+    best = counts.max()
+    cand = starts[counts == best]
+    lo = int(cand[np.argmin(np.abs(cand + span // 2 - n // 2))])
+    return lo, lo + span
+
+
+def _slice_backlash(bres, lo: int, hi: int):
+    """The Backlash Index result restricted to samples ``[lo, hi)``, re-indexed from 0.
+
+    Only what :meth:`valvediag.analysis.bi.BacklashIndex.plot` draws is kept
+    consistent (record, apices with their angles, middle points with theirs).
+    """
+    import dataclasses
+
+    ai = bres.apex_indices
+    ai = np.asarray(ai)
+    thp = np.asarray(bres.theta_peak, dtype=float)
+    mid = np.asarray(bres.middle)
+    thm = np.asarray(bres.theta_middle, dtype=float)
+    ka = (ai >= lo) & (ai < hi)
+    km = (mid >= lo) & (mid < hi)
+    inr = lambda idx: np.asarray(idx)[(np.asarray(idx) >= lo) & (np.asarray(idx) < hi)] - lo
+    thp_full = np.full(ai.size, np.nan)
+    thp_full[:min(thp.size, ai.size)] = thp[:ai.size]
+    thm_full = np.full(mid.size, np.nan)
+    thm_full[:min(thm.size, mid.size)] = thm[:mid.size]
+    return dataclasses.replace(bres, pv=bres.pv[lo:hi], peaks=inr(bres.peaks),
+                               valleys=inr(bres.valleys), middle=mid[km] - lo,
+                               theta_peak=thp_full[ka], theta_middle=thm_full[km],
+                               apex_index=ai[ka] - lo)
+
+
+def _highlight(result, detail) -> int | None:
+    """Index of the episode holding the diagnosed data."""
+    if detail.diagnosis_start is None:
+        return None
+    mid = detail.diagnosis_start + (detail.diagnosis_end - detail.diagnosis_start) / 2 \
+        if detail.diagnosis_end is not None else detail.diagnosis_start
+    for j, e in enumerate(result.episodes):
+        if e.start <= mid < e.end:
+            return j
+    return None
 
 
 def _trend(ax_t: _Panel, ax_o: _Panel, result, detail, highlight):
@@ -432,8 +517,6 @@ def _trend(ax_t: _Panel, ax_o: _Panel, result, detail, highlight):
 
 def _zoom_bi(ax: _Panel, b):
     """PV of the evidence window with peaks, valleys, middle points and measured angles."""
-    from ..analysis.bi import _ANGLE_UNIT
-
     h = b.sample_time
     pv = np.asarray(b.pv, dtype=float)
     t = np.arange(pv.size) * h
@@ -443,10 +526,9 @@ def _zoom_bi(ax: _Panel, b):
     ax.markers(t[vl], pv[vl], "^", _C2, 6, label="valleys")
     ax.markers(t[md], pv[md], "o", _C0, 4, hollow=True, label="middle points")
     if np.isfinite(b.period) and b.amplitude > 0:
-        unit = 2 * b.amplitude / (b.period / _ANGLE_UNIT)
+        unit = 2 * b.amplitude / (b.period / ANGLE_UNIT)
         seg = 0.06 * b.period
-        ai = np.asarray(b._apex_idx if b._apex_idx is not None
-                        else np.sort(np.r_[b.peaks, b.valleys]), dtype=int)
+        ai = np.asarray(b.apex_indices, dtype=int)
         thp = np.asarray(b.theta_peak, dtype=float)
         thm = np.asarray(b.theta_middle, dtype=float)
         med = float(np.median(pv)) if pv.size else 0.0
@@ -473,8 +555,6 @@ def _zoom_bi(ax: _Panel, b):
 
 
 def _zoom_linear(ax: _Panel, box, diag, cycles: float):
-    from .figures import _zoom_span
-
     h = diag.sample_time
     pv = np.asarray(diag.pv, dtype=float)
     lo, hi = _zoom_span(pv.size, diag.period / h, cycles)
@@ -576,8 +656,6 @@ def loop_svg(result, prefix: str, *, zoom_cycles: float = 4.0, title: str | None
     See the module notes for what differs from a matplotlib drawing (text
     metrics are estimated, not measured).
     """
-    from .figures import _evidence_window, _highlight, _slice_backlash
-
     detail = result.detail
     if detail is None or detail.trend is None:
         return None

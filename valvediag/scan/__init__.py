@@ -16,7 +16,15 @@ imported here: ``from valvediag.scan.run import run_scan``.
 from .loop import analyse_loop, analyse_stored_loops, load_loop_frames, valve_fault_size
 from .plan import plan_loops
 from .plant import persist_results, rank_results, severity
-from .types import Episode, LoopDetail, LoopJob, LoopResult, LoopTrend, ScanConfig, ScanSummary
+from .types import (
+           Episode,
+           LoopDetail,
+           LoopJob,
+           LoopResult,
+           LoopTrend,
+           ScanConfig,
+           ScanSummary,
+)
 
 __all__ = ["ScanConfig", "LoopJob", "Episode", "LoopTrend", "LoopDetail", "LoopResult",
            "ScanSummary", "plan_loops", "analyse_loop", "analyse_stored_loops", "load_loop_frames",

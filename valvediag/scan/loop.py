@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING
@@ -20,10 +21,10 @@ if TYPE_CHECKING:  # pragma: no cover
     import polars as pl
 
 
+from ..plain import to_plain
 from ..verdicts import ACTION_VERDICTS, EPISODE_VERDICTS, VALVE_FAULTS, rank_position
 from .plant import severity
 from .types import (
-    _UTC,
     SPARK_BUCKETS,
     Episode,
     LoopDetail,
@@ -31,10 +32,11 @@ from .types import (
     LoopResult,
     LoopTrend,
     ScanConfig,
-    _clean,
-    _log,
-    _reduce,
+    reduce_to_buckets,
 )
+
+_UTC = dt.timezone.utc
+_log = logging.getLogger(__name__)
 
 #: Shortest segment classified: at least this many grid points and seconds.
 #: Over a few dozen samples noise can pass for a short regular oscillation.
@@ -319,7 +321,7 @@ def _sparkline(aligned: AlignedLoop) -> np.ndarray | None:
     if aligned.n == 0 or not valid.any():
         return None
     pv = np.where(valid, aligned.pv, np.nan)
-    return _reduce(pv, SPARK_BUCKETS)
+    return reduce_to_buckets(pv, SPARK_BUCKETS)
 
 
 def _own(d: LoopDiagnosis | None) -> LoopDiagnosis | None:
@@ -362,7 +364,7 @@ def _insufficient(job: LoopJob, reason: str, *, frames=None, quality: dict | Non
     return LoopResult(**_base(job), verdict="insufficient-data", confidence=confidence,
                       severity=0.0, process_type=spec.process_type, bi=nan, period_s=nan,
                       amplitude=nan, amplitude_pct_span=nan, regularity=nan, reason=reason,
-                      evidence=_clean(ev), quality=quality if quality is not None
+                      evidence=to_plain(ev), quality=quality if quality is not None
                       else _no_data_quality(frames), episodes=(), detail=detail)
 
 
@@ -486,7 +488,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                          start=_grid_start(roles["pv"], job.start, step), end=job.end,
                          max_gap=config.max_gap_s)
     q = quality_metrics(aligned, roles, span=spec.span)
-    qd = _clean(q.as_dict())
+    qd = to_plain(q.as_dict())
     window_s = (job.end - job.start).total_seconds()
     h = aligned.sample_time
     min_len = max(MIN_SEGMENT_SAMPLES, int(math.ceil(MIN_SEGMENT_S / h)))
@@ -578,7 +580,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                       bi=rep.bi if verdict in EPISODE_VERDICTS else math.nan,
                       period_s=rep.period if verdict != "no-oscillation" else math.nan,
                       amplitude=amp, amplitude_pct_span=amp_pct,
-                      regularity=rep.regularity, reason=reason, evidence=_clean(ev),
+                      regularity=rep.regularity, reason=reason, evidence=to_plain(ev),
                       quality=qd, episodes=eps, size=size,
                       detail=_detail(aligned, verdict, rep, (ra, rb)))
 

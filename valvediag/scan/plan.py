@@ -13,7 +13,10 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from ..store.database import Store
 
-from .types import _SECOND, _UTC, LoopJob, ScanConfig
+from .types import LoopJob, ScanConfig
+
+_UTC = dt.timezone.utc
+_SECOND = dt.timedelta(seconds=1)
 
 
 def plan_loops(store: Store, loops: Sequence[LoopSpec], config: ScanConfig = ScanConfig()

@@ -12,6 +12,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from ..store.database import Store
 
+from ..plain import finite_or_none
 from ..verdicts import rank_position
 from .types import LoopResult
 
@@ -100,10 +101,6 @@ def rank_results(results: Iterable[LoopResult]) -> list[LoopResult]:
             + [dataclasses.replace(r, rank=None) for r in rest])
 
 
-def _nan_none(x):
-    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
-
-
 def persist_results(store: Store, run_id: str, results: Sequence[LoopResult]) -> None:
     """Write a run's verdicts and episodes to the store (one transaction).
 
@@ -121,16 +118,16 @@ def persist_results(store: Store, run_id: str, results: Sequence[LoopResult]) ->
     for r in results:
         verdicts.append({"loop": r.loop, "verdict": r.verdict, "confidence": r.confidence,
                          "rank": r.rank, "severity": r.severity, "process_type": r.process_type,
-                         "bi": _nan_none(r.bi), "period_s": _nan_none(r.period_s),
-                         "amplitude": _nan_none(r.amplitude),
-                         "regularity": _nan_none(r.regularity), "reason": r.reason,
+                         "bi": finite_or_none(r.bi), "period_s": finite_or_none(r.period_s),
+                         "amplitude": finite_or_none(r.amplitude),
+                         "regularity": finite_or_none(r.regularity), "reason": r.reason,
                          "evidence": r.evidence, "quality": r.quality})
         for e in r.episodes:
             episodes.append({"loop": r.loop, "start_ts": e.start, "end_ts": e.end,
-                             "period_s": _nan_none(e.period_s),
-                             "amplitude": _nan_none(e.amplitude),
-                             "regularity": _nan_none(e.regularity), "verdict": e.verdict,
-                             "bi": _nan_none(e.bi), "confidence": e.confidence})
+                             "period_s": finite_or_none(e.period_s),
+                             "amplitude": finite_or_none(e.amplitude),
+                             "regularity": finite_or_none(e.regularity), "verdict": e.verdict,
+                             "bi": finite_or_none(e.bi), "confidence": e.confidence})
     store.write_results(run_id, episodes=episodes, verdicts=verdicts)
 
 

@@ -21,6 +21,7 @@ from collections.abc import Callable, Sequence
 
 from ..io.exports import expand_paths
 from ..io.registry import LoopSpec, read_loops_csv
+from ..plain import one_line
 from ..report.outputs import write_outputs
 from ..store.database import Store
 from ..store.ingest import IngestReport, ingest_exports
@@ -164,7 +165,7 @@ def fail_run(db, run_id: str, exc: BaseException) -> None:
     exc : BaseException
         The failure.
     """
-    note = " ".join(str(exc).split())[:500] or type(exc).__name__
+    note = one_line(exc)[:500]
     with Store(db) as store:
         store.finish_run(run_id, "failed", note=note)
 

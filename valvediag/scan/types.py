@@ -5,10 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
-import logging
 import math
-import os
-from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -18,6 +15,7 @@ import numpy as np
 from ..analysis.align import AlignedLoop
 from ..analysis.classify import LoopDiagnosis
 from ..io.registry import LoopSpec
+from ..plain import aware_utc, to_plain
 from ..verdicts import ACTION_VERDICTS, count_verdicts
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -26,7 +24,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 
 __all__ = ["ScanConfig", "LoopJob", "Episode", "LoopTrend", "LoopDetail", "LoopResult", "ScanSummary",
-           "SPARK_BUCKETS", "TREND_BUCKETS"]
+           "SPARK_BUCKETS", "TREND_BUCKETS", "reduce_to_buckets"]
 
 
 #: Buckets of the PV sparkline kept for every loop (min and max of each) [-].
@@ -34,43 +32,7 @@ SPARK_BUCKETS = 48
 #: Buckets of the PV/OP/SP trend kept for a loop needing action (two points each) [-].
 TREND_BUCKETS = 720
 
-_SECOND = dt.timedelta(seconds=1)
 _UTC = dt.timezone.utc
-
-
-# ----------------------------------------------------------------- contracts
-
-_log = logging.getLogger(__name__)
-
-def _aware(value: dt.datetime | None, what: str) -> dt.datetime | None:
-    if value is None:
-        return None
-    if not isinstance(value, dt.datetime):
-        raise TypeError(f"{what} must be a datetime, not {type(value).__name__}")
-    if value.tzinfo is None or value.utcoffset() is None:
-        raise ValueError(f"{what} {value.isoformat()} has no time zone; give an aware datetime")
-    return value.astimezone(_UTC)
-
-
-def _clean(obj):
-    """Plain JSON values: NaN/inf -> None, numpy -> Python, datetimes -> ISO 8601."""
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        obj = obj.to_json() if hasattr(obj, "to_json") else dataclasses.asdict(obj)
-    if isinstance(obj, Mapping):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple, set, frozenset)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    if isinstance(obj, np.generic):
-        return _clean(obj.item())
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, (dt.datetime, dt.date)):
-        return obj.isoformat()
-    if isinstance(obj, Path):
-        return os.fspath(obj)
-    return obj
 
 
 @dataclass(frozen=True)
@@ -132,7 +94,7 @@ class ScanConfig:
             raise ValueError(f"max_gap_s must be positive seconds or None, not {self.max_gap_s!r}")
         if not 0.0 <= self.min_coverage <= 1.0:
             raise ValueError(f"min_coverage must lie in [0, 1], not {self.min_coverage!r}")
-        object.__setattr__(self, "end", _aware(self.end, "end"))
+        object.__setattr__(self, "end", aware_utc(self.end, "end"))
 
     @property
     def window(self) -> dt.timedelta:
@@ -141,7 +103,7 @@ class ScanConfig:
 
     def to_json(self) -> dict:
         """The parameters as plain JSON values."""
-        return _clean(dataclasses.asdict(self))
+        return to_plain(dataclasses.asdict(self))
 
 
 @dataclass(frozen=True)
@@ -203,7 +165,7 @@ class Episode:
 
     def to_json(self) -> dict:
         """Plain JSON values (NaN -> None, times as ISO 8601)."""
-        return _clean({f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
+        return to_plain({f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
 
 
 def _bucket_extremes(y: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -224,7 +186,7 @@ def _bucket_extremes(y: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     return first, second
 
 
-def _reduce(y: np.ndarray | None, buckets: int) -> np.ndarray | None:
+def reduce_to_buckets(y: np.ndarray | None, buckets: int) -> np.ndarray | None:
     """``y`` reduced to two points (its extremes, in time order) per bucket, as float32."""
     if y is None:
         return None
@@ -294,66 +256,14 @@ class LoopTrend:
         else:
             nb = -(-aligned.n // k)
             t = (np.arange(nb)[:, None] * k + np.array([0.25, 0.75]) * k).ravel() * h
-        return cls(start=aligned.start, t=t.astype(np.float64), pv=_reduce(pv, buckets),
-                   op=_reduce(aligned.op, buckets), sp=_reduce(aligned.sp, buckets),
+        return cls(start=aligned.start, t=t.astype(np.float64), pv=reduce_to_buckets(pv, buckets),
+                   op=reduce_to_buckets(aligned.op, buckets), sp=reduce_to_buckets(aligned.sp, buckets),
                    sample_time=h, step=k)
 
     def times(self) -> np.ndarray:
         """The points' times as ``datetime64[ms]`` (UTC, naive)."""
         t0 = np.datetime64(self.start.astimezone(_UTC).replace(tzinfo=None), "ms")
         return t0 + np.round(self.t * 1e3).astype("timedelta64[ms]")
-
-    def plot(self, ax=None, *, episodes: Sequence[Episode] = (), highlight: int | None = None,
-             op_ax=None):
-        """PV and SP against time, episodes shaded; OP below or on a twin axis.
-
-        Parameters
-        ----------
-        ax : matplotlib.axes.Axes, optional
-            Axes of the PV and SP.
-        episodes : sequence of Episode
-            Oscillating stretches to shade.
-        highlight : int, optional
-            Index into ``episodes`` of the one shaded darker (the one behind
-            the verdict).
-        op_ax : matplotlib.axes.Axes, optional
-            Axes of the OP (e.g. a panel below sharing the time axis);
-            default a twin of ``ax`` with its own scale on the right.
-
-        Returns
-        -------
-        matplotlib.axes.Axes
-            The PV axes.
-        """
-        import matplotlib.dates as mdates
-        import matplotlib.pyplot as plt
-
-        if ax is None:
-            _, ax = plt.subplots(figsize=(10, 3))
-        x = self.times()
-        axes = [ax] if op_ax is None else [ax, op_ax]
-        for j, e in enumerate(episodes):
-            a = np.datetime64(e.start.astimezone(_UTC).replace(tzinfo=None), "ms")
-            b = np.datetime64(e.end.astimezone(_UTC).replace(tzinfo=None), "ms")
-            for k, each in enumerate(axes):
-                each.axvspan(a, b, color="#f8c471" if j == highlight else "#fdf2e0", lw=0,
-                             zorder=0, label="oscillating" if k == 0 and j == 0 else None)
-        ax.plot(x, self.pv, color="#1f5fa8", lw=0.7, label="PV", zorder=3)
-        if self.sp is not None and np.isfinite(self.sp).any():
-            ax.plot(x, self.sp, color="black", lw=0.9, ls="--", label="SP", zorder=4)
-        ax.set_ylabel("PV")
-        if self.op is not None:
-            if op_ax is None:
-                op_ax = ax.twinx()
-            op_ax.plot(x, self.op, color="#d35400", lw=0.6, label="OP")
-            op_ax.set_ylabel("OP [%]")
-        loc = mdates.AutoDateLocator(minticks=3, maxticks=7)
-        ax.xaxis.set_major_locator(loc)
-        ax.xaxis.set_major_formatter(mdates.ConciseDateFormatter(loc, show_offset=False))
-        if x.size:
-            ax.set_xlim(x[0], x[-1])
-        ax.legend(loc="upper left", fontsize=6.5, ncol=3, framealpha=0.8)
-        return ax
 
 
 @dataclass(frozen=True)
@@ -470,7 +380,7 @@ class LoopResult:
 
     def to_json(self) -> dict:
         """Every field but ``detail`` as plain JSON values (NaN -> None, times as ISO 8601)."""
-        return _clean({f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+        return to_plain({f.name: getattr(self, f.name) for f in dataclasses.fields(self)
                        if f.name != "detail"})
 
 

@@ -45,6 +45,7 @@ import polars as pl
 import pyarrow  # noqa: F401 - imported once here, not first by DuckDB in several threads at once
 
 from ..io.registry import LoopSpec
+from ..plain import aware_utc, one_line, to_plain
 from ..verdicts import FAULT_VERDICTS, VERDICTS
 
 __all__ = ["Store", "StoreLockedError", "load_sql", "SQL_DIR", "EPISODE_COLUMNS", "VERDICT_COLUMNS"]
@@ -121,38 +122,11 @@ def load_sql(name: str) -> str:
     return path.read_text()
 
 
-def _aware(value: dt.datetime | None, what: str) -> dt.datetime | None:
-    if value is None:
-        return None
-    if not isinstance(value, dt.datetime):
-        raise TypeError(f"{what} must be a datetime, not {type(value).__name__}")
-    if value.tzinfo is None or value.utcoffset() is None:
-        raise ValueError(f"{what} {value.isoformat()} has no time zone; give an aware datetime "
-                         f"(e.g. tzinfo=datetime.timezone.utc)")
-    return value.astimezone(dt.timezone.utc)
-
-
-def _jsonable(obj):
-    """Turn numpy scalars, dataclasses, NaN/inf and tuples into plain JSON values."""
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        obj = dataclasses.asdict(obj)
-    if isinstance(obj, Mapping):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple, set, frozenset)):
-        return [_jsonable(v) for v in obj]
-    if hasattr(obj, "tolist") and not isinstance(obj, (str, bytes)):  # numpy
-        return _jsonable(obj.tolist())
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, (dt.datetime, dt.date)):
-        return obj.isoformat()
-    return obj
-
-
 def _to_json(obj) -> str | None:
+    """JSON text of a value (:func:`valvediag.plain.to_plain`); text is taken as JSON already."""
     if obj is None or isinstance(obj, str):
         return obj
-    return json.dumps(_jsonable(obj), allow_nan=False)
+    return json.dumps(to_plain(obj), allow_nan=False)
 
 
 def _result_frame(rows, columns: dict[str, pl.DataType], run_id: str, what: str
@@ -217,7 +191,7 @@ class Store:
                 self.con = duckdb.connect(self.path, read_only=read_only)
                 self.con.execute("SET TimeZone = 'UTC'")
         except duckdb.IOException as exc:
-            first = " ".join(str(exc).split())
+            first = one_line(exc)
             if "lock" in first.lower():
                 raise StoreLockedError(f"{self.path}: the store is open in another process "
                                        f"(DuckDB allows one writer): {first}") from None
@@ -478,7 +452,7 @@ class Store:
             ``ts: Datetime(us, UTC), value: Float64, status: str``, by time.
         """
         name = "tag_window_with_previous" if include_previous else "tag_window"
-        frame = self.query(name, tag=tag, start=_aware(start, "start"), end=_aware(end, "end"))
+        frame = self.query(name, tag=tag, start=aware_utc(start, "start"), end=aware_utc(end, "end"))
         return frame.cast(_SAMPLE_FRAME_SCHEMA)
 
     def fetch_loop(self, loop: LoopSpec, start: dt.datetime | None = None,
@@ -522,7 +496,7 @@ class Store:
         if not tags:
             return {}
         present = set(self.query("tags_with_data", tags=sorted(set(tags.values())),
-                                 start=_aware(start, "start"), end=_aware(end, "end"))["tag"])
+                                 start=aware_utc(start, "start"), end=aware_utc(end, "end"))["tag"])
         return {role: tag for role, tag in tags.items() if tag not in present}
 
     # -- registry ----------------------------------------------------------
@@ -577,8 +551,8 @@ class Store:
             run_id = f"{now:%Y%m%dT%H%M%S}Z-{uuid.uuid4().hex[:8]}"
         if exports is not None and not isinstance(exports, str):
             exports = ";".join(os.fspath(e) for e in exports)
-        self._run("run_start", run_id=run_id, window_start=_aware(window_start, "window_start"),
-                  window_end=_aware(window_end, "window_end"), exports=exports,
+        self._run("run_start", run_id=run_id, window_start=aware_utc(window_start, "window_start"),
+                  window_end=aware_utc(window_end, "window_end"), exports=exports,
                   params=_to_json(params or {}), owner=owner)
         return run_id
 

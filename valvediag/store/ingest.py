@@ -4,6 +4,7 @@ Ingest of historian exports into the store: each file read once, no sample ever 
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import queue
 import threading
@@ -13,22 +14,23 @@ from dataclasses import dataclass
 import polars as pl
 
 from ..io.exports import (
-    _FATAL,
     CHUNK_ROWS,
     DUPLICATE_REASON,
+    FATAL_ERRORS,
     QUARANTINE_SCHEMA,
     SAMPLE_SCHEMA,
     ExportError,
     ParsedExport,
-    _check_timezone,
-    _first_line,
-    _log,
+    check_timezone,
     expand_paths,
     file_sha256,
     iter_export,
 )
+from ..plain import first_line, one_line
 
 __all__ = ["ingest_exports", "IngestReport", "FileIngest"]
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -102,7 +104,8 @@ class IngestReport:
 # layout detection
 # --------------------------------------------------------------------------
 def _one_line(exc: BaseException | str, path: str) -> str:
-    text = " ".join(str(exc).split()) or type(exc).__name__
+    """The error in one line, naming the file."""
+    text = one_line(exc)
     return text if path in text else f"{path}: {text}"
 
 
@@ -298,7 +301,7 @@ def ingest_exports(store, paths_or_globs, *, timezone: str | None = None,
     (20 long Parquet files, 149 M rows, 2 cores) this took the ingest from
     ~2 to ~1 CPU-second per million rows.
     """
-    _check_timezone(timezone)
+    check_timezone(timezone)
     files, errors = expand_paths(paths_or_globs)
     results = []
     for i, path in enumerate(files, 1):
@@ -306,7 +309,7 @@ def ingest_exports(store, paths_or_globs, *, timezone: str | None = None,
             res = _ingest_one(store, path, timezone, force, chunk_rows)
         except (ExportError, OSError) as exc:
             res = FileIngest(path, error=_one_line(exc, path))
-        except _FATAL:
+        except FATAL_ERRORS:
             raise
         except BaseException as exc:  # noqa: BLE001 - a bug must not stop the batch either
             # not a documented file error (a PolarsError, a Rust panic, a bug): the file
@@ -314,7 +317,7 @@ def ingest_exports(store, paths_or_globs, *, timezone: str | None = None,
             kind = f"{type(exc).__module__}.{type(exc).__qualname__}"
             _log.error("unexpected %s while ingesting %s", kind, path, exc_info=exc)
             res = FileIngest(path, error=_one_line(
-                f"{path}: unexpected {kind} while ingesting the file: {_first_line(exc)}", path))
+                f"{path}: unexpected {kind} while ingesting the file: {first_line(exc)}", path))
         results.append(res)
         if progress is not None:
             progress(i, len(files), path)

@@ -256,7 +256,7 @@ class LoopData:
             import matplotlib.pyplot as plt
 
             _, ax = plt.subplots(figsize=(9, 3))
-        _shade_heldout(ax, self)
+        shade_heldout(ax, self)
         ax.plot(self.t, self.pv, color="C0", lw=0.8, label="PV")
         ax.set_xlabel("time [s]")
         ax.set_ylabel("PV")
@@ -266,7 +266,7 @@ class LoopData:
         return ax
 
 
-def _shade_heldout(ax, data: LoopData):
+def shade_heldout(ax, data: LoopData):
     """Grey spans over the held-out blocks."""
     ss = data.sample_set
     held = ss == 1

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .data import _shade_heldout
+from .data import shade_heldout
 
 __all__ = ["Diagnosis", "WorstSegment", "diagnose_fit", "residual_acf", "residual_ccf",
            "event_average", "valve_breakaways"]
@@ -152,7 +152,7 @@ class Diagnosis:
             _, ax = plt.subplots(figsize=(9, 3) if view == "residual" else (5, 3))
         if view == "residual":
             if fit is not None:
-                _shade_heldout(ax, fit.data)
+                shade_heldout(ax, fit.data)
             ax.plot(self.t, self.residual, color="C3", lw=0.7)
             ax.axhline(0, color="k", lw=0.5)
             for i, w in enumerate(self.worst):

@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..models.valves import HE, KANO
-from .data import LoopData, _shade_heldout
+from ..plain import finite_or_none
+from .data import LoopData, shade_heldout
 from .effects import EFFECTS, PLANT_PARAMS, check_effects
 from .fit import PROCESS_TYPES, Problem, Theta, search
 
@@ -281,9 +282,9 @@ class ModelFit:
 
     def to_dict(self) -> dict:
         """JSON-ready summary (NaN as None)."""
-        return {"effects": list(self.effects), "params": {k: _num(v) for k, v in self.params.items()},
-                "fit_pct": _num(self.fit_pct), "heldout_rmse": _num(self.heldout_rmse),
-                "bic": _num(self.bic)}
+        return {"effects": list(self.effects), "params": {k: finite_or_none(v) for k, v in self.params.items()},
+                "fit_pct": finite_or_none(self.fit_pct), "heldout_rmse": finite_or_none(self.heldout_rmse),
+                "bic": finite_or_none(self.bic)}
 
     def diagnose(self, **kw):
         """Where the model fails: see :func:`valvediag.workbench.diagnose_fit`.
@@ -320,7 +321,7 @@ class ModelFit:
             import matplotlib.pyplot as plt
 
             _, ax = plt.subplots(figsize=(9, 3.2))
-        _shade_heldout(ax, self.data)
+        shade_heldout(ax, self.data)
         sl = _window(self.t, window)
         ax.plot(self.t[sl], self.pv[sl], color="0.35", lw=0.8, label="measured PV")
         if other is not None:
@@ -385,13 +386,6 @@ def _window(t, window):
         return slice(None)
     a, b = np.searchsorted(t, window)
     return slice(a, max(b, a + 1))
-
-
-def _num(x):
-    if isinstance(x, (str, bool)) or x is None:
-        return x
-    x = float(x)
-    return x if math.isfinite(x) else None
 
 
 def _fmt(v):

@@ -17,10 +17,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..plain import finite_or_none
 from .data import LoopData, prepare_loop
 from .diagnosis import Z99, Diagnosis, event_average, residual_ccf
 from .effects import EFFECTS, check_effects
-from .model import LoopModel, ModelFit, _num
+from .model import LoopModel, ModelFit
 
 __all__ = ["Evidence", "Suggestion", "Suggestions", "LadderStep", "ErrorLadder",
            "effect_evidence", "suggest_effects", "forward_select", "diagnose"]
@@ -53,7 +54,7 @@ class Evidence:
 
     def to_dict(self) -> dict:
         """JSON-ready form."""
-        return {"signature": self.signature, "statistic": _num(self.statistic),
+        return {"signature": self.signature, "statistic": finite_or_none(self.statistic),
                 "summary": self.summary}
 
 
@@ -277,10 +278,10 @@ class Suggestion:
         """JSON-ready form (NaN as None)."""
         ev = self.evidence.to_dict()
         ev["accepted"] = bool(self.accepted)
-        ev["heldout_gain_pct"] = _num(100 * self.gain)
-        return {"effect": self.effect, "params": {k: _num(v) for k, v in self.params.items()},
-                "fit_pct": _num(self.fit_pct), "heldout_rmse": _num(self.heldout_rmse),
-                "bic": _num(self.bic), "evidence": ev}
+        ev["heldout_gain_pct"] = finite_or_none(100 * self.gain)
+        return {"effect": self.effect, "params": {k: finite_or_none(v) for k, v in self.params.items()},
+                "fit_pct": finite_or_none(self.fit_pct), "heldout_rmse": finite_or_none(self.heldout_rmse),
+                "bic": finite_or_none(self.bic), "evidence": ev}
 
 
 @dataclass(frozen=True, eq=False)
