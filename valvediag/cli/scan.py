@@ -179,7 +179,7 @@ def _scan_lock(db: str, wait: float):
 
 def run(args) -> int:
     exports, config = _check_inputs(args)
-    # no internet on plant machines: Prefect must not phone home (DESIGN.md)
+    # no internet on plant machines: Prefect must not phone home
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     os.environ.setdefault("DO_NOT_TRACK", "1")
     # the temporary server's first start creates its database: 20 s (Prefect's

@@ -17,7 +17,7 @@ listed, one line each, naming the file, the line and the loop.
 
 Notes
 -----
-* ``mode_tag`` is an extension of the DESIGN.md column list: the quality screen
+* ``mode_tag`` is an extension of the documented column list: the quality screen
   reports manual-mode time when a loop has one.
 * ``span`` is the PV span in engineering units [PV unit]. Empty means "derive
   from the data later" (NaN). It must be positive when given.

@@ -9,7 +9,7 @@ Notes
 -----
 * DuckDB allows one process to hold a database file open for writing; a
   second process fails even read-only. Parallel workers must return frames and
-  let one task write (see DESIGN.md). Opening a locked file raises
+  let one task write. Opening a locked file raises
   :class:`StoreLockedError` with a one-line message.
 * The connection runs with ``TimeZone = 'UTC'``: every TIMESTAMPTZ comes back
   as ``Datetime(us, UTC)``.

@@ -329,7 +329,7 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     score. The first samples, until the OP has reversed and then travelled
     ``band_max`` (or the 25th percentile OP swing if smaller), plus half a
     period, are not scored: there the valve state (and a lag fed by it)
-    depends on the unknown initial position (METHOD.md pitfalls). The data
+    depends on the unknown initial position (a pitfall of fitting Kano's model). The data
     are never resampled.
     """
     if reinit not in ("fit", "measured"):

@@ -59,7 +59,7 @@ class Effect:
     params : tuple of Param
     description : str
     signature : str
-        What its absence leaves in the residual (METHOD.md's table).
+        What its absence leaves in the residual.
     """
 
     name: str

@@ -2,7 +2,7 @@
 Which effect is missing: evidence in the residual, then the proof by refit.
 
 For every effect not yet in the model, :func:`suggest_effects` measures the
-residual signature that its absence leaves (METHOD.md's table) *and* adds
+residual signature that its absence leaves (:data:`EFFECTS`) *and* adds
 the effect, refits, and scores the refit on the held-out blocks. Candidates
 are ranked by held-out error (the evidence breaks near-ties and explains).
 An effect is *accepted* only when both the held-out RMSE and the BIC fall.
