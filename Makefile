@@ -11,7 +11,7 @@ export DO_NOT_TRACK := 1
 export PREFECT_HOME ?= $(CURDIR)/.prefect
 export MPLBACKEND := Agg
 
-.PHONY: help install test test-latest lock demo serve bench clean
+.PHONY: help install test test-fast test-latest lock demo serve bench clean
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -29,6 +29,9 @@ install: $(STAMP)  ## create .venv and install valvediag with its test tools, fr
 
 test: $(STAMP)  ## run the test suite (the locked versions)
 	$(PY) -m pytest -q
+
+test-fast: $(STAMP)  ## the unit tests only (not marked system: no Prefect server, Dask, browser, wheel, killed process)
+	$(PY) -m pytest -q -m "not system"
 
 # uv resolves the lock (fast, with hashes of every file of each version); pip installs
 # it, so a fresh machine needs nothing beyond Python to set up.

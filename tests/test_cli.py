@@ -15,6 +15,7 @@ def run_cli(*args):
                           text=True, timeout=600)
 
 
+@pytest.mark.system
 def test_help_lists_every_command_and_each_has_help(capsys):
     out = run_cli("--help")
     assert out.returncode == 0
@@ -70,6 +71,7 @@ def test_reproduce_paper_json_path_error(tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
 
 
+@pytest.mark.system
 def test_unknown_option_exits_nonzero():
     out = run_cli("bi")
     assert out.returncode != 0 and "FILE" in out.stderr

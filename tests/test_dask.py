@@ -61,6 +61,7 @@ def single(prefect_api, plant, tmp_path_factory):
     return work, _scan(plant, work)
 
 
+@pytest.mark.system
 def test_two_local_workers_give_the_single_process_results(single, plant, tmp_path):
     ref_work, ref = single
     summary = _scan(plant, tmp_path, workers=2)
@@ -73,6 +74,7 @@ def test_two_local_workers_give_the_single_process_results(single, plant, tmp_pa
     assert list(partition_root(tmp_path / "plant.duckdb").iterdir()) == []
 
 
+@pytest.mark.system
 def test_worker_processes_give_the_thread_results(single, plant, tmp_path, monkeypatch):
     """The default analysis of a plant: batches of loops on Prefect's process pool."""
     import valvediag.pipelines.runners as runners
@@ -105,6 +107,7 @@ def test_loop_batches_cover_every_loop_once_in_order(n, workers):
     assert len(batches) >= min(n, BATCHES_PER_WORKER * workers)
 
 
+@pytest.mark.system
 def test_killed_worker_is_replaced_and_its_loop_run_again(single, plant, tmp_path):
     """SIGKILL the worker process busy with a loop; the scan still completes, identically."""
     from distributed import Client, LocalCluster

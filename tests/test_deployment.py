@@ -25,6 +25,8 @@ from valvediag.io.registry import read_loops_csv
 from valvediag.store.database import VERDICTS, Store
 from valvediag.synth.plant import synth_plant
 
+pytestmark = pytest.mark.system   # a Prefect server, a process worker and the deployment
+
 # at least valvediag.pipelines.runners.MIN_LOOPS_FOR_PROCESSES loops: the flow run analyses them
 # on worker processes of the process worker's flow run, as a plant's nightly run does
 N_LOOPS, DAYS, SAMPLE_TIME, SEED = 16, 4 / 24, 5.0, 5

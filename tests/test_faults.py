@@ -132,6 +132,7 @@ def _run(args: list[str], api: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=TIMEOUT_S)
 
 
+@pytest.mark.system
 def test_scan_killed_during_analysis_is_aborted_and_the_next_completes(
         prefect_api, plant, reference, tmp_path):
     proc = _start(_scan_args(plant, tmp_path), prefect_api)
@@ -157,6 +158,7 @@ def test_scan_killed_during_analysis_is_aborted_and_the_next_completes(
         assert store.verdicts(aborted["run_id"]).is_empty()
 
 
+@pytest.mark.system
 def test_scan_killed_in_the_middle_of_a_file_is_completed_by_the_next(
         prefect_api, plant, reference, tmp_path):
     proc = _start(_scan_args(plant, tmp_path), prefect_api, sliced=True)
@@ -179,6 +181,7 @@ def test_scan_killed_in_the_middle_of_a_file_is_completed_by_the_next(
         assert got[k] == reference[k], k
 
 
+@pytest.mark.system
 def test_two_scans_at_once_one_runs_the_other_fails_in_one_line(
         prefect_api, plant, reference, tmp_path):
     procs = [_start(_scan_args(plant, tmp_path), prefect_api) for _ in range(2)]
@@ -265,6 +268,7 @@ def test_lock_is_reentrant_in_one_process_and_held_until_the_last_release(tmp_pa
     assert _other_process_gets(db)
 
 
+@pytest.mark.system
 def test_lock_of_a_killed_process_is_free_at_once(tmp_path):
     db = tmp_path / "plant.duckdb"
     holder = _holder(db, 60)

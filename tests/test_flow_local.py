@@ -60,6 +60,7 @@ def first_run(prefect_api, plant, tmp_path_factory):
     return {"state": state, "db": work / "plant.duckdb", "out": work / "out", "events": events}
 
 
+@pytest.mark.system
 def test_flow_completes_and_writes_every_loop(first_run, registry_loops):
     state = first_run["state"]
     assert state.is_completed(), state.message
@@ -88,6 +89,7 @@ def test_flow_completes_and_writes_every_loop(first_run, registry_loops):
     assert len(lines) - 1 == len(act)
 
 
+@pytest.mark.system
 def test_flow_reports_progress(first_run, registry_loops):
     events = first_run["events"]
     ingest = [e for e in events if e[0] == "ingest"]
@@ -99,6 +101,7 @@ def test_flow_reports_progress(first_run, registry_loops):
     assert {t for _, _, t in analyse} == {n}
 
 
+@pytest.mark.system
 def test_flow_creates_artifacts(first_run, registry_loops):
     from prefect.client.orchestration import get_client
     from prefect.client.schemas.filters import ArtifactFilter, ArtifactFilterFlowRunId
@@ -120,6 +123,7 @@ def test_flow_creates_artifacts(first_run, registry_loops):
     assert report in by_key[REPORT_ARTIFACT_KEY].data
 
 
+@pytest.mark.system
 def test_rerun_skips_ingested_exports_and_adds_a_complete_run(first_run, plant):
     before = first_run["state"].result()
     state = _scan(plant, first_run["db"], first_run["out"])
@@ -135,6 +139,7 @@ def test_rerun_skips_ingested_exports_and_adds_a_complete_run(first_run, plant):
     assert runs["status"].to_list() == ["complete", "complete"]
 
 
+@pytest.mark.system
 def test_failed_step_marks_the_run_failed(prefect_api, plant, tmp_path):
     blocker = tmp_path / "out"
     blocker.write_text("a file where the output directory should go")
@@ -146,6 +151,7 @@ def test_failed_step_marks_the_run_failed(prefect_api, plant, tmp_path):
     assert runs["finished_at"][0] is not None
 
 
+@pytest.mark.system
 def test_no_export_fails_before_touching_the_store(prefect_api, plant, tmp_path):
     from valvediag.pipelines.nightly import nightly_scan
 
@@ -168,6 +174,7 @@ def _cli(args, capsys, monkeypatch):
     return rc, out, err
 
 
+@pytest.mark.system
 def test_scan_json_prints_every_loop(prefect_api, plant, registry_loops, tmp_path, capsys,
                                      monkeypatch):
     rc, out, err = _cli(["--exports", plant / "exports", "--loops", plant / "loops.csv",
@@ -186,6 +193,7 @@ def test_scan_json_prints_every_loop(prefect_api, plant, registry_loops, tmp_pat
     assert "analysing loops" in err       # the progress display (stderr)
 
 
+@pytest.mark.system
 def test_scan_summary_names_the_outputs(prefect_api, plant, tmp_path, capsys, monkeypatch):
     rc, out, err = _cli(["--exports", plant / "exports", "--loops", plant / "loops.csv",
                          "--db", tmp_path / "p.duckdb", "--out", tmp_path / "out"],
@@ -196,6 +204,7 @@ def test_scan_summary_names_the_outputs(prefect_api, plant, tmp_path, capsys, mo
         assert str((tmp_path / "out" / name).resolve()) in out
 
 
+@pytest.mark.system
 def test_scan_failed_flow_is_one_line_error(prefect_api, plant, tmp_path, capsys, monkeypatch):
     import valvediag.pipelines.nightly
 
@@ -268,6 +277,7 @@ def test_scan_locked_store_one_line_error(bad, tmp_path, capsys, monkeypatch):
     assert "locked.duckdb" in err and "another process" in err
 
 
+@pytest.mark.system
 def test_scan_console_script_exits_2_with_one_line(tmp_path):
     exe = Path(sys.executable).with_name("valvediag")
     t0 = time.perf_counter()

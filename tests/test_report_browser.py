@@ -25,6 +25,8 @@ from valvediag.scan.run import run_scan
 from valvediag.scan.types import ScanConfig
 from valvediag.synth.plant import synth_plant
 
+pytestmark = pytest.mark.system   # headless Chromium
+
 ROOT = Path(__file__).resolve().parents[1]
 EVIL_LOOP = "<script>alert(1)</script>"
 EVIL_TAG = "<script>alert(1)</script>"          # the PV tag of that loop

@@ -306,6 +306,7 @@ def scanned_plant(request, tmp_path_factory):
     return plant, summary
 
 
+@pytest.mark.system
 def test_scan_matches_the_truth_of_a_synthetic_plant(scanned_plant):
     plant, summary = scanned_plant
     assert len(summary.results) == plant.truth.height
@@ -313,6 +314,7 @@ def test_scan_matches_the_truth_of_a_synthetic_plant(scanned_plant):
     assert accuracy >= 0.9, f"accuracy {accuracy:.1%}\n{table}"
 
 
+@pytest.mark.system
 def test_every_valve_fault_ranks_above_every_healthy_loop(scanned_plant):
     plant, summary = scanned_plant
     tv = dict(zip(plant.truth["loop"], plant.truth["truth_verdict"]))
@@ -329,6 +331,7 @@ def test_every_valve_fault_ranks_above_every_healthy_loop(scanned_plant):
     assert sev == sorted(sev, reverse=True)
 
 
+@pytest.mark.system
 def test_scan_writes_outputs_and_history(scanned_plant):
     plant, summary = scanned_plant
     doc = json.loads(summary.outputs["verdicts"].read_text())
@@ -350,6 +353,7 @@ def small_plant(tmp_path_factory):
     return synth_plant(10, 0.1, 5.0, base / "plant", seed=21), base
 
 
+@pytest.mark.system
 def test_bad_input_and_history_through_run_scan(small_plant):
     plant, base = small_plant
     exports = base / "exports"
@@ -448,6 +452,7 @@ def _truth_params(text: str) -> dict:
     return {k: float(v) for k, v in (kv.split("=") for kv in text.split(";") if kv)}
 
 
+@pytest.mark.system
 def test_valve_faults_carry_a_size_near_the_simulated_one(scanned_plant):
     """The scan sizes each stiction/backlash verdict with the workbench's loop model.
 
