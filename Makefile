@@ -31,7 +31,7 @@ test: $(STAMP)  ## run the test suite (the locked versions)
 	$(PY) -m pytest -q
 
 test-fast: $(STAMP)  ## the unit tests only (not marked system: no Prefect server, Dask, browser, wheel, killed process)
-	$(PY) -m pytest -q -m "not system"
+	$(PY) -m pytest -q -m "not system" -n 2
 
 # uv resolves the lock (fast, with hashes of every file of each version); pip installs
 # it, so a fresh machine needs nothing beyond Python to set up.

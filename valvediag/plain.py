@@ -12,7 +12,7 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 
-__all__ = ["to_plain", "finite_or_none", "one_line", "first_line", "aware_utc"]
+__all__ = ["to_plain", "finite_or_none", "one_line", "first_line", "printable", "aware_utc"]
 
 
 def to_plain(obj):
@@ -117,6 +117,31 @@ def first_line(exc: BaseException) -> str:
     """
     text = str(exc).strip()
     return " ".join(text.splitlines()[0].split()) if text else type(exc).__name__
+
+
+def printable(text: str) -> str:
+    """Text fit for a one-line message: every character that is not printable (line
+    breaks of any kind, including ``\\x85`` and ``\\u2028``, form feeds and other
+    controls) shown escaped, e.g. ``\\x0c``.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> printable("a\\x85b")
+    'a\\\\x85b'
+    """
+    text = str(text)
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
+                   for c in text)
 
 
 def aware_utc(value: dt.datetime | None, what: str) -> dt.datetime | None:

@@ -89,7 +89,7 @@ from pathlib import Path
 
 import polars as pl
 
-from ..plain import first_line, one_line
+from ..plain import first_line, one_line, printable
 
 _log = logging.getLogger(__name__)
 
@@ -167,7 +167,11 @@ CHUNK_ROWS = 2 * 122_880
 
 
 class ExportError(ValueError):
-    """A whole export cannot be read. The message is one line naming the file."""
+    """A whole export cannot be read. The message is one line naming the file: text
+    from the file in it is shown with its controls and line breaks escaped."""
+
+    def __init__(self, message: str):
+        super().__init__(printable(message))
 
 
 # --------------------------------------------------------------------------
@@ -932,8 +936,12 @@ def _finish(path: str, shape: str, good: pl.DataFrame, bad: list[pl.DataFrame],
     bad_lines = pl.concat([b.select(pl.col("line").cast(pl.Int64), "reason") for b in bad]
                           + [conflicts])
     raw = bad_lines.join(_raw_lines(raw_source, bad_lines["line"]), on="line", how="left")
+    # a reason quotes text from the file: one line always (the raw text keeps it all)
+    reason = pl.col("reason")
+    reason = (pl.when(reason.str.contains(r"[\p{Cc}\p{Zl}\p{Zp}]"))
+              .then(reason.map_elements(printable, return_dtype=pl.String)).otherwise(reason))
     quarantine = raw.select(source_file=pl.lit(path), line="line", raw="raw",
-                            reason="reason").cast(QUARANTINE_SCHEMA).sort("line", "reason")
+                            reason=reason).cast(QUARANTINE_SCHEMA).sort("line", "reason")
     return ParsedExport(path, shape, samples, quarantine, dropped, d.backwards, tuple(notes),
                         raw_source, d.later)
 

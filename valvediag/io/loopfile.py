@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
+from ..plain import printable
+
 __all__ = ["LoopRecord", "read_loop_csv", "LoopFileError"]
 
 ROLES = ("timestamp", "pv", "op", "sp", "mv")
@@ -42,11 +44,7 @@ class LoopFileError(ValueError):
     """
 
     def __init__(self, message: str):
-        text = str(message)
-        if not text.isprintable():
-            text = "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
-                           for c in text)
-        super().__init__(text)
+        super().__init__(printable(message))
 
 
 @dataclass(frozen=True)

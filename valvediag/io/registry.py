@@ -35,6 +35,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..plain import printable
+
 __all__ = ["LoopSpec", "RegistryError", "read_loops_csv", "PROCESS_TYPES", "ROLES"]
 
 PROCESS_TYPES = ("integrating", "self-regulating", "unknown")
@@ -144,7 +146,7 @@ def _rows(reader, path: str, problems: list[str]):
 
 def _shown(name: str) -> str:
     """A loop name fit for a one-line message (line breaks and controls escaped)."""
-    return name if name.isprintable() else name.encode("unicode_escape").decode("ascii")
+    return printable(name)
 
 
 def _map_header(header: list[str], path: str) -> list[str]:
