@@ -100,13 +100,14 @@ def process_matrices(process, process_gain, tau, lag, dead_time, sample_time):
 
 @numba.njit(cache=True)
 def simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_sp,
-                  stop_reversals, rev_idx, pv_only=False):
+                 stop_reversals, rev_idx, pv_only=False, ext_load=None, ext_sp=None):
     """Simulate one loop for up to ``n`` samples into the output buffers.
 
     If ``stop_reversals > 0`` the run stops once the valve has reversed its
     direction of travel that many times; the sample index of each reversal is
     written to ``rev_idx``. With ``pv_only`` only ``out_pv`` is written.
-    Returns the number of samples written.
+    ``ext_load`` and ``ext_sp`` (length ``n``, or None) are added to the load
+    and the set point at every sample. Returns the number of samples written.
     """
     kc = P[C_KC]
     h = P[C_H]
@@ -149,8 +150,10 @@ def simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_s
     sin_p = P[C_LSINPHI]
     has_sin = sin_a != 0.0
     # one test per step for everything that is usually absent
+    has_ext_load = ext_load is not None
+    has_ext_sp = ext_sp is not None
     dynamic = has_sin or ldrift != 0.0 or lnoise > 0.0 or noise > 0.0 or \
-        (lstep != 0.0 and k_ls > 0)
+        (lstep != 0.0 and k_ls > 0) or has_ext_load
     clipped = op_hi < np.inf or op_lo > -np.inf
     if lstep != 0.0 and k_ls == 0:
         load0 += lstep
@@ -164,9 +167,13 @@ def simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_s
         and f01 == 0.0 and f10 == 0.0
     for k in range(n):
         sp = sp1 if k >= k_sp else sp0
+        if has_ext_sp:
+            sp += ext_sp[k]
         load = load0
         pv = y
         if dynamic:
+            if has_ext_load:
+                load += ext_load[k]
             if ldrift != 0.0:
                 load += ldrift * (k * h)
             if has_sin:
@@ -231,13 +238,22 @@ def _simulate_batch(P, phi_f, gam_f, phi_g, gam_g, n, pv, op, mv, sp):
     dummy = np.empty(1, dtype=np.int64)
     for i in numba.prange(m):
         simulate_one(P[i], phi_f[i], gam_f[i], phi_g[i], gam_g[i], n,
-                      pv[i], op[i], mv[i], sp[i], 0, dummy)
+                     pv[i], op[i], mv[i], sp[i], 0, dummy)
+
+
+@numba.njit(cache=True, parallel=True)
+def _simulate_batch_profiles(P, phi_f, gam_f, phi_g, gam_g, n, pv, op, mv, sp, loads, sps):
+    m = P.shape[0]
+    dummy = np.empty(1, dtype=np.int64)
+    for i in numba.prange(m):
+        simulate_one(P[i], phi_f[i], gam_f[i], phi_g[i], gam_g[i], n,
+                     pv[i], op[i], mv[i], sp[i], 0, dummy, False, loads[i], sps[i])
 
 
 def parameter_table(m, *, kc, ti, sample_time, valve, valve_params, process, process_gain, tau,
-                 lag, dead_time, sp, sp_step, sp_step_time, load, load_step, load_step_time,
-                 load_drift, load_sin_amplitude, load_sin_period, load_sin_phase, noise_std,
-                 seed, op_limits, load_noise_std=0.0, valve_noise_band=0.0):
+                    lag, dead_time, sp, sp_step, sp_step_time, load, load_step, load_step_time,
+                    load_drift, load_sin_amplitude, load_sin_period, load_sin_phase, noise_std,
+                    seed, op_limits, load_noise_std=0.0, valve_noise_band=0.0):
     """Build the (m, N_COLS) kernel table and process matrices."""
     P = np.zeros((m, N_COLS))
 
@@ -365,7 +381,8 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
                   load=0.0, load_step=0.0, load_step_time=0.0, load_drift=0.0,
                   load_sin_amplitude=0.0, load_sin_period=np.inf, load_sin_phase=0.0,
                   load_noise_std=0.0, noise_std=0.0, seed=None,
-                  op_limits=(-np.inf, np.inf), valve_noise_band=0.0) -> LoopSimulation:
+                  op_limits=(-np.inf, np.inf), valve_noise_band=0.0, load_profile=None,
+                  sp_profile=None) -> LoopSimulation:
     """Simulate PI control loops with a valve model, vectorised over scenarios.
 
     Every numeric argument may be a scalar or an array of shape (m,), one value
@@ -422,6 +439,11 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
         must fall back more than this from its running extreme to reverse
         the valve (:func:`valvediag.models.valves.kano`). With measurement noise fed
         back, a valve without one sticks at every noise reversal. Default 0.
+    load_profile, sp_profile : array_like, shape (n,) or (m, n), optional
+        Any load [OP unit] or set-point [PV unit] history, added sample by
+        sample to the load and the set point above (a square wave, a random
+        walk, set-point moves). Their length sets the number of samples
+        when neither ``duration`` nor ``n_samples`` is given.
 
     Returns
     -------
@@ -441,9 +463,18 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
     ...                     tau=50, sp_step=1)
     """
     args = {k: v for k, v in locals().items()}
+    profiles = {}
+    for name in ("load_profile", "sp_profile"):
+        v = args.pop(name)
+        if v is not None:
+            v = np.asarray(v, dtype=float)
+            if v.ndim not in (1, 2) or not np.all(np.isfinite(v)):
+                raise ValueError(f"{name} must be a finite array of shape (n,) or (m, n)")
+            profiles[name] = v
     sizes = [np.size(v) for k, v in args.items()
              if k not in ("valve_params", "process", "seed", "op_limits", "duration", "n_samples")
              and not isinstance(v, str)]
+    sizes += [v.shape[0] for v in profiles.values() if v.ndim == 2]
     sizes += [np.size(v) for v in (valve_params or {}).values()]
     if not isinstance(valve, str):
         sizes.append(np.size(valve))
@@ -457,14 +488,26 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
         load_sin_phase=load_sin_phase, noise_std=noise_std, seed=seed, op_limits=op_limits,
         load_noise_std=load_noise_std, valve_noise_band=valve_noise_band)
     if n_samples is None:
-        if duration is None:
+        if duration is not None:
+            n_samples = int(np.ceil(duration / P[:, C_H].max()))
+        elif profiles:
+            n_samples = min(v.shape[-1] for v in profiles.values())
+        else:
             raise TypeError("give duration [s] or n_samples")
-        n_samples = int(np.ceil(duration / P[:, C_H].max()))
     n = int(n_samples)
     if n < 1:
         raise ValueError("the simulation needs at least one sample")
     out = [np.empty((m, n)) for _ in range(4)]
-    _simulate_batch(P, phi_f, gam_f, phi_g, gam_g, n, *out)
+    if profiles:
+        ext = []
+        for name in ("load_profile", "sp_profile"):
+            v = profiles.get(name, np.zeros(n))
+            if v.shape[-1] < n:
+                raise ValueError(f"{name} has {v.shape[-1]} samples; the simulation needs {n}")
+            ext.append(np.ascontiguousarray(np.broadcast_to(np.atleast_2d(v)[:, :n], (m, n))))
+        _simulate_batch_profiles(P, phi_f, gam_f, phi_g, gam_g, n, *out, *ext)
+    else:
+        _simulate_batch(P, phi_f, gam_f, phi_g, gam_g, n, *out)
     scalar = m == 1 and all(np.ndim(v) == 0 for v in args.values() if not isinstance(v, (dict, tuple)))
     if scalar:
         out = [a[0] for a in out]
