@@ -1,0 +1,370 @@
+"""
+Labelled single loops of the kinds real plant records hold, for benchmarks and tests.
+
+The synthetic plant (:func:`valvediag.synth.synth_plant`) holds textbook
+cases: sustained limit cycles, mostly on integrating loops. Real historian
+records show more, and the scan must be right on all of it
+(:data:`CLASSES`):
+
+* sticky and loose valves in limit cycles on level loops (the paper's case),
+  among them sawtooth cycles with a slow rise and a fast fall (the valve
+  closes fully on a net inflow);
+* sticky valves on level loops under proportional-only control: no limit
+  cycle, stick-slip events around set-point moves and load changes;
+* sticky flow, pressure and temperature valves (self-regulating, time
+  constants 2-60 s): square-wave PV and triangular OP, periods 30 s to 20 min;
+* sticky flow valves without a limit cycle: the OP ramps for minutes while the
+  flow stays flat within its noise, then the flow jumps in a sample;
+* loose flow valves: a dead band after each reversal, no jump;
+* healthy valves under non-sinusoidal disturbances (square, triangular,
+  clipped) at 10-60 samples per period, on level and flow loops;
+* healthy valves in loops tuned too tightly (ringing), and quiet healthy
+  loops with set-point moves and a wandering load;
+* dead responses: the OP moves over tens of percent and the PV does not.
+
+Each loop is simulated in closed loop (:func:`valvediag.models.simulate_loop`)
+with the controller at half the historian's sample time and measurement
+noise fed back (a sticky valve's actuator does not reverse on the OP noise
+that causes: ``valve_noise_band``), then recorded as a historian would: every
+second sample, 1-10 s, as a 1-4 h snapshot around an event or a full day,
+some exception-and-swinging-door compressed. Every draw is rejected and
+redrawn until the record shows its class (enough cycles or events, at least
+15 samples per period), so the truth is what the data can show.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..models.closedloop import simulate_loop
+from .plant import exception_deadband, swinging_door
+
+__all__ = ["CLASSES", "SynthLoop", "draw_loop", "loop_set"]
+
+#: Class -> (truth verdict, process type, whether the fault shows as a limit cycle).
+CLASSES: dict[str, tuple[str, str, bool]] = {
+    "level-stiction-cycle": ("stiction", "integrating", True),
+    "level-backlash-cycle": ("backlash", "integrating", True),
+    "level-stiction-sawtooth": ("stiction", "integrating", True),
+    "level-stiction-events": ("stiction", "integrating", False),
+    "flow-stiction-cycle": ("stiction", "self-regulating", True),
+    "flow-stiction-events": ("stiction", "self-regulating", False),
+    "flow-backlash-events": ("backlash", "self-regulating", False),
+    "level-linear-disturbance": ("linear-oscillation", "integrating", True),
+    "flow-linear-disturbance": ("linear-oscillation", "self-regulating", True),
+    "level-linear-tuning": ("linear-oscillation", "integrating", True),
+    "level-healthy": ("no-oscillation", "integrating", False),
+    "flow-healthy": ("no-oscillation", "self-regulating", False),
+    "dead-response": ("insufficient-data", "self-regulating", False),
+}
+#: Classes whose valve is faulty.
+FAULT_CLASSES = tuple(k for k, v in CLASSES.items() if v[0] in ("stiction", "backlash"))
+
+_DAY = 86_400.0
+
+
+@dataclass(frozen=True)
+class SynthLoop:
+    """One labelled loop record.
+
+    Attributes
+    ----------
+    name : str
+    klass : str
+        One of :data:`CLASSES`.
+    truth : str
+        The verdict a correct scan gives.
+    process_type : str
+        ``'integrating'`` or ``'self-regulating'``.
+    pv, op, sp : numpy.ndarray
+        The record [%: PV in % of span, OP in % of travel].
+    sample_time : float
+        [s]
+    params : dict
+        What was simulated (valve, tuning, disturbance, noise, storage).
+    """
+
+    name: str
+    klass: str
+    truth: str
+    process_type: str
+    pv: np.ndarray = field(repr=False)
+    op: np.ndarray = field(repr=False)
+    sp: np.ndarray = field(repr=False)
+    sample_time: float
+    params: dict = field(default_factory=dict)
+
+    @property
+    def duration_s(self) -> float:
+        """Length of the record [s]."""
+        return self.pv.size * self.sample_time
+
+
+def _wave(kind: str, t: np.ndarray, period: float, phase: float) -> np.ndarray:
+    """A unit disturbance of period ``period`` [s]: sine, square, triangle or clipped sine."""
+    x = 2 * np.pi * t / period + phase
+    if kind == "square":
+        return np.sign(np.sin(x))
+    if kind == "triangle":
+        return 2 / np.pi * np.arcsin(np.sin(x))
+    if kind == "clipped":
+        return np.clip(1.6 * np.sin(x), -1, 1)
+    return np.sin(x)
+
+
+def _random_walk(rng, n: int, h: float, step_s: float, size: float) -> np.ndarray:
+    """A load that wanders: piecewise-linear through random points ``step_s`` apart."""
+    k = max(2, int(n * h / step_s) + 2)
+    pts = np.cumsum(rng.normal(0, size, k))
+    return np.interp(np.arange(n) * h, np.arange(k) * step_s, pts - pts[0])
+
+
+def _sp_moves(rng, n: int, h: float, every_s: tuple[float, float], size: float) -> np.ndarray:
+    """Set-point moves of +-``size`` at random intervals."""
+    out = np.zeros(n)
+    t, level = rng.uniform(*every_s) * 0.3, 0.0
+    while t < n * h:
+        level += size * rng.choice((-1.0, 1.0)) * rng.uniform(0.5, 1.0)
+        out[int(t / h):] = level
+        t += rng.uniform(*every_s)
+    return out
+
+
+def _record(pv, op, sp, rng, compressed: bool, sigma: float):
+    """Every second controller sample; exception and swinging-door storage if asked."""
+    pv, op, sp = pv[::2].copy(), op[::2].copy(), sp[::2].copy()
+    if compressed:
+        t = np.arange(pv.size, dtype=float)
+        amp = 0.5 * (np.percentile(pv, 99) - np.percentile(pv, 1))
+        dev = max(rng.uniform(0.01, 0.03) * amp, 2.0 * sigma, 1e-6)
+        exc = np.flatnonzero(exception_deadband(pv, dev / 2))
+        keep = exc[swinging_door(pv[exc], dev, t=exc.astype(float))]
+        pv = np.interp(t, keep, pv[keep])
+        kop = np.flatnonzero(exception_deadband(op, rng.uniform(0.05, 0.2)))
+        op = np.interp(t, kop, op[kop])
+    return pv, op, sp
+
+
+def _cycles(pv: np.ndarray, h: float):
+    """(period [s], cycles) of the record, from the oscillation detector."""
+    from ..analysis.oscillation import detect_oscillation
+
+    osc = detect_oscillation(pv, h)
+    return osc.period, osc.cycles, osc.regularity
+
+
+def _events(pv: np.ndarray, noise: float) -> int:
+    """Jumps of the PV between two samples larger than 6 noise sigma (slips)."""
+    d = np.abs(np.diff(pv))
+    return int(np.sum(d > 6 * noise * math.sqrt(2)))
+
+
+def draw_loop(klass: str, rng: np.random.Generator, *, name: str = "", tries: int = 60
+              ) -> SynthLoop:
+    """Simulate one loop of a class, redrawn until its record shows the class.
+
+    Parameters
+    ----------
+    klass : str
+        One of :data:`CLASSES`.
+    rng : numpy.random.Generator
+    name : str
+    tries : int
+        Redraws before giving up.
+
+    Returns
+    -------
+    SynthLoop
+
+    Raises
+    ------
+    ValueError
+        An unknown class, or no draw in ``tries`` showed it.
+    """
+    if klass not in CLASSES:
+        raise ValueError(f"unknown class {klass!r}; choose from {', '.join(CLASSES)}")
+    truth, ptype, _ = CLASSES[klass]
+    for _ in range(tries):
+        out = _try(klass, rng)
+        if out is not None:
+            pv, op, sp, h, params = out
+            return SynthLoop(name=name or klass, klass=klass, truth=truth, process_type=ptype,
+                             pv=pv, op=op, sp=sp, sample_time=h, params=params)
+    raise ValueError(f"{klass}: no draw in {tries} tries showed the class")
+
+
+def _try(klass: str, rng: np.random.Generator):
+    """One draw: (pv, op, sp, h, params) or None when the record does not show the class."""
+    h = float(rng.choice((1.0, 2.0, 5.0, 10.0)))
+    length = float(rng.choice((1.0, 2.0, 4.0))) * 3600 if rng.random() < 0.5 else _DAY
+    compressed = bool(rng.random() < 0.3)
+    noise_pct = float(rng.uniform(0.5, 3.0))
+    hc = h / 2.0
+    warm = 4 * 3600.0
+    n = int((length + warm) / hc)
+    t = np.arange(n) * hc
+    p: dict = dict(sample_time=h, length_s=length, compressed=compressed, noise_pct=noise_pct)
+    integ = klass.startswith("level")
+    sim = dict(sample_time=hc, n_samples=n, sp=50.0, process_gain=1.0,
+               process="integrating" if integ else "self-regulating")
+    profile_load = np.zeros(n)
+    profile_sp = np.zeros(n)
+    cycle_expected = CLASSES[klass][2]
+    if integ:
+        tau = float(np.exp(rng.uniform(np.log(60), np.log(1000))))
+        kc = float(rng.uniform(0.7, 3.0))
+        ti = float(rng.uniform(1.0, 2.4)) * tau
+        sim.update(tau=tau, kc=kc, ti=ti, load=50.0,
+                   dead_time=float(rng.uniform(0, 0.05)) * tau,
+                   lag=float(rng.uniform(0, 0.1)) * tau)
+    else:
+        tau = float(np.exp(rng.uniform(np.log(2), np.log(60))))
+        kc = float(rng.uniform(0.3, 1.2))
+        ti = float(rng.uniform(0.5, 1.5)) * tau
+        sim.update(tau=tau, kc=kc, ti=ti, load=0.0, sp=50.0,
+                   dead_time=float(rng.uniform(0, 0.2)) * tau,
+                   lag=float(rng.uniform(0, 0.2)) * tau)
+    valve, vp = "linear", {}
+    if "stiction" in klass:
+        S = float(rng.uniform(1.0, 6.0))
+        vp = {"S": S, "J": float(rng.uniform(0.2, 1.0)) * S}
+        valve = "kano"
+    elif "backlash" in klass:
+        vp = {"DB": float(rng.uniform(1.0, 6.0))}
+        valve = "backlash"
+    sim.update(valve=valve, valve_params=vp or None)
+    if klass == "level-stiction-sawtooth":
+        # the valve closes fully (OP limited at 0) against a small net inflow
+        sim.update(load=float(rng.uniform(0.15, 0.4)) * vp["S"], op_limits=(0.0, 100.0))
+    elif klass == "level-stiction-events":
+        # proportional-only level control: no integral action, no limit cycle
+        sim.update(ti=1e12, kc=float(rng.uniform(0.5, 2.0)))
+        profile_sp = _sp_moves(rng, n, hc, (1200.0, 3600.0), float(rng.uniform(2.0, 6.0)))
+        profile_load = _random_walk(rng, n, hc, 600.0, 0.3 * vp["S"])
+    elif klass == "flow-stiction-events":
+        # slow integral action and a wandering load: the OP creeps for minutes
+        sim.update(kc=float(rng.uniform(0.05, 0.3)), ti=float(rng.uniform(60.0, 600.0)))
+        profile_load = _random_walk(rng, n, hc, float(rng.uniform(600.0, 1800.0)),
+                                    0.25 * vp["S"])
+    elif klass == "flow-backlash-events":
+        # ordinary tuning and a wandering load: the OP reverses now and then
+        sim.update(kc=float(rng.uniform(0.2, 0.6)), ti=float(rng.uniform(1.0, 4.0)) * tau)
+        profile_load = _random_walk(rng, n, hc, float(rng.uniform(300.0, 1200.0)),
+                                    0.5 * vp["DB"])
+    elif klass.endswith("linear-disturbance"):
+        spp = float(rng.uniform(10.0, 60.0))
+        period = spp * h
+        kind = str(rng.choice(("square", "triangle", "clipped", "sine")))
+        amp = float(rng.uniform(1.0, 5.0))
+        if integ:
+            # a level loop rejects a fast load poorly: the load is a flow [%/s scale]
+            sim.update(kc=float(rng.uniform(1.0, 3.0)), ti=float(rng.uniform(1.5, 3.0)) * tau)
+        profile_load = amp * _wave(kind, t, period, float(rng.uniform(0, 2 * np.pi)))
+        p.update(disturbance=kind, disturbance_period_s=period, disturbance_amplitude=amp)
+    elif klass == "level-linear-tuning":
+        theta = float(rng.uniform(0.1, 0.4)) * tau
+        ti = float(rng.uniform(6.0, 20.0)) * theta
+        from ..paper.scenarios import ultimate_gain_pi_integrator
+
+        kc = float(rng.uniform(0.85, 0.97)) * ultimate_gain_pi_integrator(tau, theta, ti)
+        sim.update(kc=kc, ti=ti, dead_time=theta, lag=0.0, load_noise_std=0.5)
+    elif klass.endswith("healthy"):
+        profile_sp = _sp_moves(rng, n, hc, (1800.0, 7200.0), float(rng.uniform(1.0, 4.0)))
+        profile_load = _random_walk(rng, n, hc, 900.0, 1.0)
+    elif klass == "dead-response":
+        return _dead_response(rng, h, length, compressed, noise_pct, p)
+    if "stiction" in klass or "backlash" in klass or klass in ("level-linear-tuning",):
+        sim.update(sp_step=1.0, sp_step_time=60.0)
+    # measurement noise: in % of the clean record's range, fed back to the controller
+    clean = simulate_loop(**sim, load_profile=profile_load, sp_profile=profile_sp)
+    k0 = int(warm / hc)
+    rng_pv = float(np.ptp(clean.pv[k0:]))
+    if not rng_pv > 0:
+        return None
+    sigma = noise_pct / 100.0 * rng_pv
+    band = 6.0 * abs(sim["kc"]) * sigma if valve == "kano" else 0.0
+    run = simulate_loop(**sim, load_profile=profile_load, sp_profile=profile_sp,
+                        noise_std=sigma, valve_noise_band=band, seed=int(rng.integers(1 << 31)))
+    pv, op, sp = run.pv[k0:], run.op[k0:], run.sp[k0:]
+    pv, op, sp = _record(pv, op, sp, rng, compressed, sigma)
+    p.update(tau_s=tau, kc=sim["kc"], ti_s=sim["ti"], dead_time_s=sim.get("dead_time", 0.0),
+             lag_s=sim.get("lag", 0.0), valve=valve, **vp, noise_sigma=sigma)
+    # does the record show its class?
+    period, cycles, regularity = _cycles(pv, h)
+    p.update(period_s=period, cycles=cycles)
+    if cycle_expected:
+        if not (np.isfinite(period) and period >= 15 * h and cycles >= 4 and regularity > 1.0):
+            return None
+        if klass.startswith("flow") and not 30.0 <= period <= 1200.0:
+            return None
+    elif klass == "flow-backlash-events":
+        from ..workbench.kernels import turning_points
+
+        idx, _, _ = turning_points(op, vp["DB"])
+        if idx.size < 4:
+            return None
+        if np.isfinite(period) and cycles >= 4 and regularity > 1.0:
+            return None
+        p.update(reversals=int(idx.size))
+    elif klass.endswith("events") and klass != "level-stiction-events":
+        slips = _events(pv, sigma)
+        if slips < 3 or np.ptp(op) < 1.0:
+            return None
+        if np.isfinite(period) and cycles >= 4 and regularity > 1.0:
+            return None                      # that would be a limit cycle
+        p.update(slips=slips)
+    elif klass == "level-stiction-events":
+        if np.isfinite(period) and cycles >= 4 and regularity > 1.0:
+            return None
+    elif klass.endswith("healthy"):
+        if np.isfinite(period) and cycles >= 4 and regularity > 1.0:
+            return None
+    return pv, op, sp, h, p
+
+
+def _dead_response(rng, h, length, compressed, noise_pct, p):
+    """A PV that does not answer (a valve stuck shut, a closed block valve, a dead
+    transmitter) while a PI controller moves its OP over tens of percent."""
+    n = int(length / h)
+    t = np.arange(n) * h
+    level = float(rng.choice((0.0, rng.uniform(10, 90))))
+    noisy = rng.random() < 0.5
+    pv = np.full(n, level) + (rng.normal(0, 0.05, n) if noisy else 0.0)
+    # the operator or a cascade moves the set point around the stuck PV
+    sp = level + _sp_moves(rng, n, h, (900.0, 3600.0), float(rng.uniform(2.0, 8.0)))
+    sp += np.where(sp == level, rng.choice((-1.0, 1.0)) * 3.0, 0.0)
+    kc, ti = float(rng.uniform(0.2, 1.0)), float(rng.uniform(60.0, 600.0))
+    e = sp - pv
+    op = np.clip(float(rng.uniform(5, 60)) + kc * e + np.cumsum(e) * h / ti, 0.0, 100.0)
+    if np.ptp(op) < 20:
+        return None
+    pv, op, sp = _record(np.repeat(pv, 2), np.repeat(op, 2), np.repeat(sp, 2), rng, compressed,
+                         0.05 if noisy else 0.0)
+    p.update(stuck_level=level, kc=kc, ti_s=ti, valve="unknown (no response)",
+             period_s=math.nan, cycles=0.0)
+    return pv, op, sp, h, p
+
+
+def loop_set(n_per_class: int, seed: int, classes=None) -> list[SynthLoop]:
+    """``n_per_class`` loops of every class, reproducibly.
+
+    Parameters
+    ----------
+    n_per_class : int
+    seed : int
+        Seed of the whole set (each loop gets its own stream).
+    classes : sequence of str, optional
+        Default every class of :data:`CLASSES`.
+
+    Returns
+    -------
+    list of SynthLoop
+    """
+    out = []
+    for ci, klass in enumerate(classes or CLASSES):
+        for i in range(n_per_class):
+            rng = np.random.default_rng([seed, ci, i])
+            out.append(draw_loop(klass, rng, name=f"{klass}-{i:02d}"))
+    return out
