@@ -42,14 +42,26 @@ def test_oscillation_with_still_op_is_external():
     assert d.verdict == "linear-oscillation" and "OP stands still" in d.reason
 
 
-def test_self_regulating_from_metadata_and_from_data():
+def test_self_regulating_sticky_valve_found_from_metadata_and_from_data():
+    # the Backlash Index does not apply; the valve signature finds the sticky valve
     pv, op, h = _loop("kano", {"S": 4.0, "J": 4.0}, process="self-regulating", kc=0.8, ti=20.0,
                       tau=15.0)
     d = classify_loop(pv, op, sample_time=h, process_type="self-regulating")
-    assert d.verdict == "not-integrating" and d.process_screen == "metadata"
+    assert d.verdict == "stiction" and d.process_screen == "metadata"
+    assert "valve signature" in d.reason and d.evidence["signature"]["J"] > 0
     d = classify_loop(pv, op, sample_time=h, process_type="unknown")
-    assert d.verdict == "not-integrating" and d.process_screen == "self-regulating"
+    assert d.verdict == "stiction" and d.process_screen == "self-regulating"
     assert d.evidence["ramp_curvature"] > 0.011 or d.evidence["ramp_share"] < 0.6
+
+
+def test_self_regulating_linear_valve_under_a_square_load_is_not_a_valve_fault():
+    t = np.arange(6000) * 2.0
+    load = np.sign(np.sin(2 * np.pi * t / 240.0))
+    pv, op, h = _loop("linear", {}, process="self-regulating", kc=0.8, ti=20.0, tau=15.0,
+                      load_profile=np.repeat(load, 1)[:6000])
+    d = classify_loop(pv, op, sample_time=h, process_type="self-regulating")
+    assert d.verdict == "linear-oscillation", d.reason
+    assert d.evidence["signature"]["verdict"] == "linear"
 
 
 def test_unknown_integrating_loop_is_screened_as_integrating():

@@ -131,18 +131,20 @@ def test_conflicting_episodes_lower_the_confidence():
     assert "episodes disagree" in r.reason
 
 
-def test_quiet_loop_is_no_oscillation_but_too_little_data_is_insufficient():
+def test_quiet_loop_is_no_oscillation_and_a_snapshot_says_what_it_covers():
     rng = np.random.default_rng(4)
     t = np.arange(7200.0)
     pv = 50 + np.cumsum(rng.normal(0, 0.002, t.size)) + rng.normal(0, 0.01, t.size)
     op = 50 + rng.normal(0, 0.2, t.size)
-    r = analyse_loop(job_for(SPEC, t.size), {"pv": frame(t, pv), "op": frame(t, op)})
-    assert r.verdict == "no-oscillation" and r.rank is None and r.severity == 0.0
-    # the same 2 h inside a 24 h window: under 10 % coverage
+    full = analyse_loop(job_for(SPEC, t.size), {"pv": frame(t, pv), "op": frame(t, op)})
+    assert full.verdict == "no-oscillation" and full.rank is None and full.severity == 0.0
+    # the same 2 h inside a 24 h window (an export around an event): analysed,
+    # and the verdict names the hours it stands on, with less confidence
     job = LoopJob(SPEC, T0, T0 + dt.timedelta(hours=24))
     r = analyse_loop(job, {"pv": frame(t, pv), "op": frame(t, op)})
-    assert r.verdict == "insufficient-data"
-    assert "only 2 h of usable data in the 24 h window" in r.reason
+    assert r.verdict == "no-oscillation"
+    assert "no oscillation in the 2 h of data available (of the 24 h window)" in r.reason
+    assert r.confidence < full.confidence
 
 
 @pytest.mark.parametrize("spec, frames, problems, expect", [

@@ -236,7 +236,7 @@ def test_artefacts_leave_usable_loops_usable(plant, samples):
 # ---------------------------------------------------------------- truth vs data
 
 def test_stiction_loop_oscillates_at_stated_period(plant, samples):
-    rows = plant.truth.filter(pl.col("truth_verdict").is_in(["stiction", "backlash", "not-integrating",
+    rows = plant.truth.filter(pl.col("truth_verdict").is_in(["stiction", "backlash",
                                                              "linear-oscillation"]))
     assert rows.height >= 4
     for row in rows.iter_rows(named=True):

@@ -10,27 +10,35 @@ queries get the sets they need as parameters. A loop gets the first verdict of
 verdict                 meaning
 ======================  ===============================================================
 ``insufficient-data``   too little usable data to judge; the reason says why
-``no-oscillation``      no regular oscillation
-``not-integrating``     oscillates, but on a self-regulating process (the Backlash
-                        Index does not apply)
+``no-oscillation``      no oscillation and no valve fault in the data analysed
 ``linear-oscillation``  an oscillation that no valve nonlinearity explains (tuning or
                         an external disturbance)
 ``stiction``            a sticky valve: it sticks, then jumps
 ``backlash``            a loose valve: a dead band without a jump
 ``undecided``           a valve nonlinearity whose kind the evidence cannot settle
 ======================  ===============================================================
+
+``not-integrating`` (earlier versions' verdict for an oscillating
+self-regulating loop, where the Backlash Index does not apply) is retired:
+such loops now get the valve verdict their valve signature supports. Stores
+written with it still open and their history still reads
+(:data:`STORED_VERDICTS`).
 """
 from __future__ import annotations
 
-__all__ = ["VERDICTS", "PRECEDENCE", "RANK_ORDER", "VALVE_FAULTS", "VALVE_NONLINEARITY",
+__all__ = ["VERDICTS", "STORED_VERDICTS", "LEGACY_VERDICTS", "PRECEDENCE", "RANK_ORDER", "VALVE_FAULTS", "VALVE_NONLINEARITY",
            "ACTION_VERDICTS", "FAULT_VERDICTS", "EPISODE_VERDICTS", "HEALTHY_VERDICTS",
            "rank_position", "count_verdicts"]
 
 #: Every verdict word, in the order a loop is checked for them.
-PRECEDENCE = ("insufficient-data", "no-oscillation", "not-integrating", "linear-oscillation",
-              "stiction", "backlash", "undecided")
-#: Every verdict word (the set the store accepts).
+PRECEDENCE = ("insufficient-data", "no-oscillation", "linear-oscillation", "stiction",
+              "backlash", "undecided")
+#: Every verdict word a scan gives.
 VERDICTS = PRECEDENCE
+#: Verdicts of earlier versions, retired: stores still hold them.
+LEGACY_VERDICTS = ("not-integrating",)
+#: Every verdict word the store accepts (a store written by an earlier version opens).
+STORED_VERDICTS = VERDICTS + LEGACY_VERDICTS
 #: Order of the ranked list, the report's sections and a loop's verdict when its
 #: episodes disagree: valve faults first, healthy and unusable loops last.
 RANK_ORDER = ("stiction", "backlash", "undecided", "linear-oscillation", "not-integrating",
@@ -48,7 +56,8 @@ ACTION_VERDICTS = ("stiction", "backlash", "linear-oscillation", "undecided")
 FAULT_VERDICTS = ("stiction", "backlash", "linear-oscillation")
 #: Verdicts that establish an oscillation (an episode of the loop).
 EPISODE_VERDICTS = ("not-integrating", "linear-oscillation", "stiction", "backlash", "undecided")
-#: Verdicts that close an open problem of an earlier run.
+#: Verdicts that close an open problem of an earlier run (``not-integrating``
+#: for the history of stores written by earlier versions).
 HEALTHY_VERDICTS = ("no-oscillation", "not-integrating")
 
 

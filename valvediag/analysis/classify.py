@@ -7,11 +7,15 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
 1. ``insufficient-data``: too little usable data (gaps, a frozen PV, too few
    cycles, too few samples per cycle); the reason says which.
 2. ``no-oscillation``: no regular oscillation.
-3. ``not-integrating``: the loop oscillates but its process is
-   self-regulating, where the BI does not apply.
-4. ``linear-oscillation``: a regular oscillation that no valve nonlinearity
+3. ``linear-oscillation``: a regular oscillation that no valve nonlinearity
    explains (tuning or an external disturbance); send no one to the valve.
-5. ``stiction``, ``backlash`` or ``undecided`` (BI between the limits).
+   A sinusoidal PV, an OP that stands still, or a valve position implied by
+   the PV that follows the OP (:func:`follows_op`) says so.
+4. ``stiction``, ``backlash`` or ``undecided``. On an integrating process the
+   Backlash Index decides, as the paper does, and the valve signature
+   (:func:`valvediag.analysis.signature.valve_signature`) settles a BI
+   between its limits; on a self-regulating process (a flow, pressure,
+   temperature), where the BI does not apply, the valve signature decides.
 
 Every verdict carries a confidence in [0, 1] and its evidence.
 """
@@ -24,6 +28,7 @@ import numpy as np
 from .bi import THRESHOLDS, BacklashIndex, backlash_index
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import Oscillation, detect_oscillation
+from .signature import ValveSignature, horch_correlation, valve_signature
 
 __all__ = ["classify_loop", "LoopDiagnosis", "integrating_screen"]
 
@@ -38,6 +43,71 @@ DIST_LINEAR = 0.03
 #: share above these mean an integrating process.
 RAMP_CURVATURE_MAX = 0.011
 RAMP_SHARE_MIN = 0.6
+#: A valve "follows the OP" when a linear valve explains at least this share of
+#: the held-out variance of the valve position the PV implies ...
+FOLLOWS_R2 = 0.95
+#: ... and the best sticky or loose valve removes less than this share of the rest ...
+FOLLOWS_GAIN = 0.35
+#: ... in a record that resolves the valve's motion: at least this many
+#: slope windows per oscillation period.
+FOLLOWS_RESOLUTION = 10.0
+
+
+def follows_op(sig: ValveSignature, period: float) -> bool:
+    """Does the valve position implied by the PV follow the OP linearly?
+
+    Parameters
+    ----------
+    sig : ValveSignature
+    period : float
+        Oscillation period [s].
+
+    Returns
+    -------
+    bool
+        True when a linear valve explains at least ``FOLLOWS_R2`` of the
+        held-out variance of the implied valve position, the best sticky or
+        loose valve removes less than ``FOLLOWS_GAIN`` of what is left, and
+        the record resolves the valve's motion (the slope window is at most a
+        tenth of the period): whatever the shape of the PV, the valve is not
+        what makes it.
+
+    Notes
+    -----
+    At 20 samples per period (the paper's experiment) the PV slope is read
+    over a fifth of the period, a sticky valve's jump is smeared and a
+    linear valve with a lag explains the slope almost as well: there the
+    Backlash Index is the better evidence and this test abstains.
+    """
+    resolved = (np.isfinite(period) and sig.window > 0
+                and period / sig.sample_time >= FOLLOWS_RESOLUTION * 2 * sig.window)
+    return bool(resolved and sig.verdict == "linear" and sig.r2_linear >= FOLLOWS_R2
+                and sig.gain < FOLLOWS_GAIN)
+
+
+def _self_regulating_verdict(verdict, x, u, h, osc, src, c_data, ev, **kw):
+    """Verdict on an oscillating self-regulating loop, from the valve signature."""
+    sig = valve_signature(x, u, h, process="self-regulating", period=osc.period)
+    horch = horch_correlation(x, u, h, osc.period)
+    ev.update(signature=sig.as_dict(), horch_ratio=horch)
+    where = f"on a self-regulating process ({src})"
+    if sig.nonlinear:
+        conf = c_data * (0.5 + 0.45 * min(1.0, sig.gain))
+        if sig.verdict == "undecided":
+            conf *= 0.6
+        return verdict(sig.verdict, conf, f"{sig.reason}, {where}; method: valve signature",
+                       **kw)
+    if sig.verdict == "linear":
+        return verdict("linear-oscillation", c_data * (0.5 + 0.4 * max(0.0, sig.r2_linear)),
+                       f"an oscillation {where} that no valve nonlinearity explains: "
+                       f"{sig.reason}; review the tuning or trace an external disturbance", **kw)
+    if sig.verdict == "no-response":
+        return verdict("linear-oscillation", 0.5 * c_data,
+                       f"the PV oscillates {where} but does not answer the OP ({sig.reason}): "
+                       "the oscillation comes from outside the loop", **kw)
+    return verdict("insufficient-data", 0.6,
+                   f"oscillates with a period of {osc.period:.4g} s {where}, but the valve's "
+                   f"signature cannot be read: {sig.reason}", **kw)
 
 
 @dataclass(frozen=True)
@@ -352,23 +422,22 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                                      shape.pv_distortion)
     ev.update(sev, process_screen=screen)
     proc_conf = 1.0
-    if process_type == "self-regulating" or (process_type == "unknown" and screen == "self-regulating"):
-        src = "loop registry" if process_type == "self-regulating" else \
-            (f"data test: the PV does not run in straight ramps (curvature "
-             f"{sev['ramp_curvature']:.3f}, ramp share {sev['ramp_share']:.2f})")
-        return verdict("not-integrating", 0.9 * c_data if process_type != "unknown" else 0.7 * c_data,
-                       f"oscillates with a period of {osc.period:.4g} s, but the process is "
-                       f"self-regulating ({src}); the Backlash Index does not apply",
-                       process_screen="metadata" if process_type != "unknown" else screen,
-                       shape=shape, **common)
+    selfreg = process_type == "self-regulating" or (process_type == "unknown"
+                                                    and screen == "self-regulating")
+    pscreen = "metadata" if process_type != "unknown" else screen
     if process_type == "unknown" and screen == "unknown":
         proc_conf = 0.75
-    pscreen = "metadata" if process_type != "unknown" else screen
     if not op_moves:
         return verdict("linear-oscillation", 0.8 * c_data,
                        "the PV oscillates while the OP stands still: the oscillation comes from "
                        "outside the loop (manual mode, or a disturbance)", process_screen=pscreen,
                        shape=shape, **common)
+    if selfreg:
+        src = "loop registry" if process_type == "self-regulating" else \
+            (f"data test: the PV does not run in straight ramps (curvature "
+             f"{sev['ramp_curvature']:.3f}, ramp share {sev['ramp_share']:.2f})")
+        return _self_regulating_verdict(verdict, x, u, h, osc, src, c_data, ev,
+                                        process_screen=pscreen, shape=shape, **common)
     if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR:
         conf = c_data * proc_conf * (0.5 + 0.5 * (1.0 - shape.pv_distortion / DIST_LINEAR))
         return verdict("linear-oscillation", conf,
@@ -388,6 +457,16 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return verdict("insufficient-data", 0.6, f"the Backlash Index could not be measured: {bres.reason}",
                        process_screen=pscreen, shape=shape, backlash=bres, **common)
     lo, hi = bres.thresholds
+    sig = valve_signature(x, u, h, process="integrating", period=osc.period)
+    ev["signature"] = sig.as_dict()
+    if follows_op(sig, osc.period):
+        return verdict("linear-oscillation", c_data * proc_conf * (0.5 + 0.5 * sig.r2_linear),
+                       "the valve position implied by the PV slope follows the OP (held-out R2 "
+                       f"{sig.r2_linear:.2f} with a linear valve; a sticky or loose valve removes "
+                       f"only {max(0.0, 100 * sig.gain):.0f}% of the rest): a disturbance or the "
+                       f"tuning, not the valve, although the Backlash Index reads {bres.bi:.2f}",
+                       process_screen=pscreen, bi=bres.bi, shape=shape, backlash=bres, **common)
+    bres_verdict = bres.verdict
     if bres.verdict == "stiction":
         conf = c_data * proc_conf * (0.55 + 0.45 * _margin(bres.bi, lo, 0.15))
         reason = (f"sharp turns at the peaks (Backlash Index {bres.bi:.2f} <= {lo:g}): the valve "
@@ -396,11 +475,16 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         conf = c_data * proc_conf * (0.55 + 0.45 * _margin(bres.bi, hi, 0.15))
         reason = (f"rounded peaks after straight ramps (Backlash Index {bres.bi:.2f} >= {hi:g}): "
                   "the valve moves smoothly once it has crossed a dead band")
+    elif sig.verdict in ("stiction", "backlash"):
+        conf = 0.5 * c_data * proc_conf * (0.5 + 0.5 * min(1.0, sig.gain))
+        reason = (f"the Backlash Index {bres.bi:.2f} lies between {lo:g} and {hi:g}, and the "
+                  f"valve signature decides: {sig.reason}")
+        bres_verdict = sig.verdict
     else:
         conf = 0.3 * c_data * proc_conf
         reason = (f"a valve nonlinearity, but the Backlash Index {bres.bi:.2f} lies between "
                   f"{lo:g} and {hi:g}: stiction and backlash cannot be told apart")
     if pscreen == "unknown" and process_type == "unknown":
         reason += "; the process type is not known, the loop is assumed integrating"
-    return verdict(bres.verdict, conf, reason, process_screen=pscreen, bi=bres.bi, shape=shape,
+    return verdict(bres_verdict, conf, reason, process_screen=pscreen, bi=bres.bi, shape=shape,
                    backlash=bres, **common)

@@ -35,7 +35,7 @@ SHORT_ACTIONS = {
 VERDICT_LABELS = {
     "stiction": "sticky valve", "backlash": "loose valve (backlash)",
     "undecided": "valve problem, kind unclear", "linear-oscillation": "oscillation, not the valve",
-    "not-integrating": "oscillates, not assessed", "no-oscillation": "healthy",
+    "not-integrating": "oscillates, not assessed (earlier version)", "no-oscillation": "healthy",
     "insufficient-data": "not enough data",
 }
 
@@ -228,8 +228,8 @@ def _opening(r) -> str:
                 "valve would distort the swing. The likely cause is the controller tuning or "
                 "a disturbance coming from elsewhere in the plant, not this valve.")
     if v == "not-integrating":
-        return ("The loop oscillates, but its process is self-regulating, where the valve "
-                "test used here does not apply.")
+        return ("An earlier version of this tool found the loop oscillating on a "
+                "self-regulating process and did not assess its valve.")
     if v == "no-oscillation":
         return "The loop does not oscillate: nothing to do."
     return "The loop could not be assessed."

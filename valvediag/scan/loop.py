@@ -538,11 +538,10 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
         ra, rb, rep = max(seg_diag, key=lambda e: e[1] - e[0])
         verdict, confidence, reason = rep.verdict, rep.confidence, rep.reason
         if verdict == "no-oscillation" and ev["coverage"] < config.min_coverage:
-            verdict = "insufficient-data"
-            reason = (f"only {usable_s / 3600:.2g} h of usable data in the {window_s / 3600:.3g} h "
-                      f"window (need {100 * config.min_coverage:.0f}% of it to rule out an "
-                      f"oscillation)")
-            confidence = 0.9
+            # a snapshot: say what the verdict covers rather than refuse it
+            reason = (f"no oscillation in the {usable_s / 3600:.2g} h of data available (of the "
+                      f"{window_s / 3600:.3g} h window): {reason}")
+            confidence *= 0.5 + 0.5 * ev["coverage"] / config.min_coverage
         if len(segs) > 1:
             ev["segment_verdicts"] = sorted({d.verdict for _, _, d in seg_diag})
 

@@ -56,9 +56,10 @@ class ScanConfig:
         Longest interval bridged by interpolation, for every tag [s]. Default:
         per tag from its own spacing (:func:`valvediag.analysis.align.tag_max_gap`).
     min_coverage : float, default 0.1
-        Share of the window that must hold usable data before a loop without
-        any oscillation is called ``no-oscillation`` rather than
-        ``insufficient-data`` [-].
+        Share of the window below which a ``no-oscillation`` verdict is a
+        snapshot's: its reason names the hours it stands on and its
+        confidence falls in proportion (an export of a few hours around an
+        event is analysed, not refused) [-].
     size_estimate : bool, default True
         Fit the workbench's loop model to every ``stiction`` or ``backlash``
         loop and put the fault's size on it (dead band, or Kano S and J, in

@@ -50,8 +50,8 @@ __all__ = [
 # ----------------------------------------------------------------- contracts
 
 #: Loop verdicts, in the order the classifier tests them.
-TRUTH_VERDICTS = ("insufficient-data", "no-oscillation", "not-integrating",
-                  "linear-oscillation", "stiction", "backlash")
+TRUTH_VERDICTS = ("insufficient-data", "no-oscillation", "linear-oscillation", "stiction",
+                  "backlash")
 
 #: Category of synthetic loop -> nominal share of the plant.
 CATEGORY_SHARES: dict[str, float] = {
@@ -68,7 +68,7 @@ CATEGORY_SHARES: dict[str, float] = {
 CATEGORY_VERDICT: dict[str, str] = {
     "stiction": "stiction", "backlash": "backlash",
     "linear-oscillation": "linear-oscillation", "healthy": "no-oscillation",
-    "selfreg-stiction": "not-integrating", "selfreg-healthy": "no-oscillation",
+    "selfreg-stiction": "stiction", "selfreg-healthy": "no-oscillation",
     "bad-data": "insufficient-data",
 }
 
@@ -1116,7 +1116,7 @@ def synth_plant(n_loops: int, days: float, sample_time: float, out_dir, *, seed:
                                integral action (zeta 0.04-0.08) ringing
     healthy             25 %   ``no-oscillation``: integrating, linear valve,
                                zeta 0.8-1.3
-    selfreg-stiction    7.5 %  ``not-integrating``: self-regulating, Kano valve
+    selfreg-stiction    7.5 %  ``stiction``: self-regulating, Kano valve
     selfreg-healthy     7.5 %  ``no-oscillation``: self-regulating, linear valve
     bad-data            15 %   ``insufficient-data``: in turn PV tag missing
                                from the exports, PV only digital states, PV

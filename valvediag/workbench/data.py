@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..analysis.quality import white_noise_std
 from .kernels import nudge_holds, turning_points
 
 __all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "white_noise_std"]
@@ -28,55 +29,6 @@ NOISE_REVERSAL = 6.0
 
 class WorkbenchDataError(ValueError):
     """Data the workbench cannot model; the message is one line."""
-
-
-def white_noise_std(x) -> float:
-    """Standard deviation of the white noise on a sampled, possibly compressed, signal.
-
-    Parameters
-    ----------
-    x : array_like, shape (n,)
-        Uniformly sampled signal; NaN where missing [unit of x].
-
-    Returns
-    -------
-    float
-        Noise standard deviation [unit of x]; 0 for a noise-free signal.
-
-    Notes
-    -----
-    Each stored point is compared with the straight line through its two
-    neighbours; for white noise of standard deviation ``sigma`` on a signal
-    that is locally straight the difference has the standard deviation
-    ``sigma sqrt(1 + w1**2 + w2**2)`` (``w1 + w2 = 1``, the weights of the
-    neighbours), and ``sigma`` is 1.4826 times the median absolute
-    normalised difference. The stored points are the samples where the
-    second difference is not zero: every sample of a raw record, the kept
-    points of a record compressed by a historian and read back by linear
-    interpolation (whose second differences are zero between them, so a
-    plain second-difference estimate reads no noise at all), or the steps
-    of a held one. Curvature of the signal between neighbours adds to the
-    estimate; it is small where the signal is sampled several times per
-    change of slope. An exception dead band biases the kept values towards
-    the direction of travel (the first sample beyond the band is kept), so
-    the estimate of a heavily compressed record is approximate.
-    """
-    y = np.asarray(x, dtype=float)
-    y = y[np.isfinite(y)]
-    if y.size < 5:
-        return 0.0
-    d2 = np.diff(y, 2)
-    tiny = 1e-12 * max(float(np.max(np.abs(y))), 1.0)
-    knots = np.r_[0, np.flatnonzero(np.abs(d2) > tiny) + 1, y.size - 1]
-    knots = np.unique(knots)
-    if knots.size < 5:
-        return 0.0
-    t = knots.astype(float)
-    v = y[knots]
-    w2 = (t[1:-1] - t[:-2]) / (t[2:] - t[:-2])
-    w1 = 1.0 - w2
-    r = (v[1:-1] - (w1 * v[:-2] + w2 * v[2:])) / np.sqrt(1.0 + w1 ** 2 + w2 ** 2)
-    return float(1.4826 * np.median(np.abs(r - np.median(r))))
 
 
 def _nan_fill(x):

@@ -1,0 +1,524 @@
+"""
+Valve signature: what did the valve do, read back from the process variable?
+
+A control valve that sticks holds its position while the controller output
+(OP) moves, then jumps; a loose valve holds in a dead band after each
+reversal and then follows without a jump; a healthy valve follows the OP.
+The valve's position is rarely recorded, but the process shows it:
+
+* on an **integrating** process (a level) the PV's *slope* is proportional to
+  the valve position less the net load;
+* on a **self-regulating** process (a flow, pressure, temperature) the *PV*
+  itself follows the valve position after the process's dead time and lag.
+
+:func:`valve_signature` fits that picture directly, a Hammerstein model in
+the manner of Jelali (2008) and Karra & Karim (2009): a valve model (linear,
+or Kano's two-parameter stiction model [1]_ whose slip jump ``J = 0`` is a
+dead band of width ``S``), then a dead time and a first-order lag, then a
+gain and a slowly drifting offset (the unmeasured load), all fitted to the
+target (PV or PV slope) by least squares over a grid of ``(S, J)`` and of
+the dynamics. The gain, offset and drift enter linearly and are solved
+exactly for every grid point; the grid is run for all candidates at once.
+
+The record is cut into alternating blocks; the models are fitted on half of
+them and scored on the other half. The evidence that matters is
+
+* ``gain``: the share of the linear valve's held-out error that the best
+  sticky or loose valve removes. A valve nonlinearity that makes the loop
+  behave as it does removes most of it; a square, triangular or clipped
+  external disturbance, which no valve model explains, removes little;
+* ``S`` and ``J``: the identified stick band and slip jump [OP unit],
+  against the OP's own noise;
+* ``kind_gain``: how much better a valve *with* a slip jump explains the
+  held-out data than a pure dead band (stiction against backlash);
+* ``stuck_share``: Kano et al.'s stick detection [1]_ read from the fitted
+  valve: the share of the time the OP moved by more than its noise while the
+  valve stood still.
+
+References
+----------
+.. [1] Kano, M., Maruta, H., Kugemoto, H., Shimizu, K. (2004). Practical model
+   and detection algorithm for valve stiction. IFAC DYCOPS 7, Boston.
+.. [2] Jelali, M. (2008). Estimation of valve stiction in control loops using
+   separable least-squares and global search algorithms. Journal of Process
+   Control 18, 632-642.
+.. [3] Karra, S., Karim, M. N. (2009). Comprehensive methodology for detection
+   and diagnosis of oscillatory control loops. Control Engineering Practice
+   17, 939-956.
+.. [4] Horch, A. (1999). A simple method for detection of stiction in control
+   valves. Control Engineering Practice 7, 1221-1231.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import lfilter
+
+from ..models.valves import apply_valve
+from .quality import white_noise_std
+
+__all__ = ["ValveSignature", "valve_signature", "horch_correlation", "SIGNATURE_LIMITS"]
+
+#: Decision limits of :func:`valve_signature` (calibrated on the development
+#: set of ``benchmarks/bench_realistic.py``, seed 1).
+SIGNATURE_LIMITS = {
+    # held-out error removed by the nonlinear valve: below this, no valve fault
+    "gain": 0.4,
+    # the nonlinear valve must explain this share of the held-out variance
+    "r2": 0.5,
+    # the stick band must exceed this multiple of the OP's noise band
+    "band_over_noise": 1.0,
+    # a slip jump must remove this share of the dead band's held-out error
+    "kind_gain": 0.06,
+    # J/S at and above which a fitted slip jump counts as stiction
+    "jump_ratio": 0.3,
+    # OP range [OP unit] that a PV must answer before it counts as dead
+    "dead_op_range": 10.0,
+}
+#: Most samples fitted (the most active stretch of a longer record).
+MAX_SAMPLES = 4000
+#: OP noise multiples that are not a reversal of the actuator.
+NOISE_REVERSAL = 6.0
+_JS = (0.0, 0.25, 0.5, 0.75, 1.0)
+_DELAYS = (0, 1, 2, 4, 8, 16)
+_BLOCKS = 24
+
+
+@dataclass(frozen=True)
+class ValveSignature:
+    """The valve's behaviour read back from the PV, with its evidence.
+
+    Attributes
+    ----------
+    process : str
+        ``'integrating'`` (the PV slope was fitted) or ``'self-regulating'``
+        (the PV was fitted).
+    verdict : str
+        ``'stiction'``, ``'backlash'``, ``'undecided'`` (a nonlinearity of
+        unclear kind), ``'linear'`` (the valve follows the OP),
+        ``'no-response'`` (the OP moved and the PV did not answer) or
+        ``'unknown'`` (too little data or OP movement to tell).
+    reason : str
+        One sentence.
+    gain : float
+        Share of the linear valve's held-out squared error removed by the best
+        nonlinear valve [-].
+    r2_linear, r2_valve : float
+        Held-out coefficient of determination of the linear and the best
+        nonlinear valve [-].
+    kind_gain : float
+        Share of the best dead band's (``J = 0``) held-out error removed by the
+        best valve with a slip jump [-]; positive favours stiction.
+    S, J : float
+        Stick band and slip jump of the best nonlinear valve [OP unit]; for a
+        dead band ``J = 0`` and ``S`` is its width.
+    noise_band : float
+        OP noise band not counted as a reversal [OP unit].
+    dead_time, lag : float
+        Process dead time and first-order lag of the best fit [s].
+    stuck_share : float
+        Share of the samples in which the OP moved by more than its noise band
+        from where the fitted valve stuck, while the valve stood still [-].
+    samples : int
+        Samples fitted.
+    window : int
+        Integrating process: the half-width of the central difference that
+        reads the PV slope [samples]; the valve's motion is resolved only on
+        time scales well above ``2 window`` samples. 0 for a
+        self-regulating process.
+    start : int
+        First fitted sample, as an index into the arrays given.
+    sample_time : float
+        [s]
+    op, implied, fitted : numpy.ndarray
+        The OP, the valve position implied by the PV (in OP units, after the
+        fitted gain, offset and drift are removed) and the fitted valve, for
+        the plot.
+    """
+
+    process: str
+    verdict: str
+    reason: str
+    gain: float = math.nan
+    r2_linear: float = math.nan
+    r2_valve: float = math.nan
+    kind_gain: float = math.nan
+    S: float = math.nan
+    J: float = math.nan
+    noise_band: float = math.nan
+    dead_time: float = math.nan
+    lag: float = math.nan
+    stuck_share: float = math.nan
+    samples: int = 0
+    window: int = 0
+    start: int = 0
+    sample_time: float = 1.0
+    op: np.ndarray | None = field(default=None, repr=False)
+    implied: np.ndarray | None = field(default=None, repr=False)
+    fitted: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def nonlinear(self) -> bool:
+        """A valve nonlinearity was identified."""
+        return self.verdict in ("stiction", "backlash", "undecided")
+
+    def as_dict(self) -> dict:
+        """The figures as plain floats (NaN where not measured)."""
+        keys = ("process", "verdict", "gain", "r2_linear", "r2_valve", "kind_gain", "S", "J",
+                "noise_band", "dead_time", "lag", "stuck_share", "samples", "window")
+        out = {}
+        for k in keys:
+            v = getattr(self, k)
+            out[k] = round(float(v), 4) if isinstance(v, float) else v
+        return out
+
+    def plot(self, ax=None):
+        """The valve signature: implied valve position against OP, with the fit.
+
+        A healthy valve draws a line; a sticky one a parallelogram (flat while
+        stuck, steep at each slip); a loose one a parallelogram with sloped
+        ends and no jump.
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(4.5, 4))
+        if self.op is None:
+            ax.text(0.5, 0.5, self.reason, ha="center", va="center", transform=ax.transAxes,
+                    wrap=True)
+            return ax
+        ax.plot(self.op, self.implied, ".", ms=2, color="C0", alpha=0.4,
+                label="implied by the PV")
+        ax.plot(self.op, self.fitted, lw=0.9, color="C3", label=f"fitted valve ({self.verdict})")
+        ax.set_xlabel("OP [%]")
+        ax.set_ylabel("valve position [% of OP]")
+        ax.set_title(f"S {self.S:.2f}, J {self.J:.2f}, gain {self.gain:.2f}")
+        ax.legend(loc="best", fontsize=8)
+        return ax
+
+
+def _most_active(op: np.ndarray, m: int) -> int:
+    """Start of the ``m``-sample window in which the OP travels furthest."""
+    n = op.size
+    if n <= m:
+        return 0
+    starts = np.unique(np.r_[np.arange(0, n - m, max(1, m // 4)), n - m])
+    ranges = [np.ptp(op[s:s + m]) for s in starts]
+    return int(starts[int(np.argmax(ranges))])
+
+
+def _slope_window(pv: np.ndarray, h: float, noise: float) -> int:
+    """Half-width [samples] of the central difference that reads the PV slope.
+
+    The smallest of 2, 4, 8, ... whose noise on the slope is under a quarter
+    of the slope's spread; the valve candidates are averaged over the same
+    window, so a wide window loses no bias, only detail."""
+    n = pv.size
+    w = 2
+    while 4 * w < n // 8:
+        y = (pv[2 * w:] - pv[:-2 * w]) / (2 * w * h)
+        if noise * math.sqrt(2.0) / (2 * w * h) <= 0.25 * float(np.std(y)):
+            break
+        w *= 2
+    return w
+
+
+def _hats(N: int, knots: int) -> np.ndarray:
+    """``knots`` piecewise-linear hat functions over ``N`` samples (sum to 1)."""
+    x = np.linspace(0.0, knots - 1.0, N)
+    k = np.arange(knots)[None, :]
+    return np.clip(1.0 - np.abs(x[:, None] - k), 0.0, None)
+
+
+def _dynamics(V: np.ndarray, delays, lags, h: float) -> tuple[np.ndarray, list]:
+    """Every row of ``V`` through every (dead time, lag) pair: rows x pairs."""
+    out, combos = [], []
+    for d in delays:
+        Vd = V if d == 0 else np.concatenate([np.repeat(V[:, :1], d, axis=1), V[:, :-d]], axis=1)
+        for tau in lags:
+            if tau <= 0:
+                Z = Vd
+            else:
+                a = math.exp(-h / tau)
+                Z = lfilter([1.0 - a], [1.0, -a], Vd - Vd[:, :1], axis=1) + Vd[:, :1]
+            out.append(Z)
+            combos.append((d, tau))
+    return np.stack(out, axis=1), combos        # (rows, pairs, n)
+
+
+class _Scorer:
+    """Least squares of ``y ~ b z + P c`` on the training blocks, scored on the rest."""
+
+    def __init__(self, y: np.ndarray, P: np.ndarray, train: np.ndarray):
+        self.y, self.P, self.train, self.test = y, P, train, ~train
+        Q, R = np.linalg.qr(P[train])
+        self.Q, self.R = Q, R
+        yt = y[train]
+        self.qy = Q.T @ yt
+        self.ry = yt - Q @ self.qy
+        self.var_test = float(np.sum((y[~train] - y[~train].mean()) ** 2))
+
+    def score(self, Z: np.ndarray):
+        """(train SSE, test SSE, b, c) for each row of ``Z`` (rows, n)."""
+        Zt = Z[:, self.train]
+        qz = Zt @ self.Q                              # (m, p)
+        rz = Zt - qz @ self.Q.T
+        zz = np.einsum("ij,ij->i", rz, rz)
+        zy = rz @ self.ry
+        b = np.divide(zy, zz, out=np.zeros_like(zy), where=zz > 1e-12 * max(1.0, zz.max()))
+        sse_train = float(self.ry @ self.ry) - b * zy
+        c = np.linalg.solve(self.R, (self.qy[None, :] - b[:, None] * qz).T).T   # (m, p)
+        pred = b[:, None] * Z[:, self.test] + c @ self.P[self.test].T
+        sse_test = np.sum((self.y[self.test][None, :] - pred) ** 2, axis=1)
+        return sse_train, sse_test, b, c
+
+
+def valve_signature(pv, op, sample_time: float, *, process: str, period: float = math.nan,
+                    max_samples: int = MAX_SAMPLES) -> ValveSignature:
+    """Read the valve's behaviour back from the PV: linear, sticky or loose.
+
+    Parameters
+    ----------
+    pv : array_like, shape (n,)
+        Process variable, uniformly sampled, no gaps [PV unit].
+    op : array_like, shape (n,)
+        Controller output, same samples [OP unit, usually %].
+    sample_time : float
+        [s]
+    process : {'integrating', 'self-regulating'}
+        Which picture to fit: the PV slope or the PV.
+    period : float, optional
+        Oscillation period when one is known [s]; the load's drift is kept
+        slower than three periods so that it cannot absorb the cycle.
+    max_samples : int
+        Longer records are fitted on the stretch of this many samples in which
+        the OP travels furthest (at the native sampling: a valve's jump is one
+        sample wide, and resampling would smear it).
+
+    Returns
+    -------
+    ValveSignature
+
+    Raises
+    ------
+    ValueError
+        Unequal lengths, non-finite samples, an unknown process type or a
+        non-positive sample time.
+
+    Notes
+    -----
+    The model is: valve (linear, or Kano's ``(S, J)`` with an actuator that
+    ignores OP noise of six noise standard deviations), dead time (0-16
+    samples), first-order lag (0 and eight values from one sample to a
+    twentieth of the record, at most 600 s), gain, and an offset drifting
+    piecewise-linearly with knots at least 30 minutes and three periods
+    apart. The dynamics are first chosen with a linear valve; the nonlinear
+    valves are then fitted with dynamics no slower than those (a dead band
+    delays the response like a lag does, and the comparison must not credit
+    the valve with the process's lag).
+
+    It assumes one valve, one process and a load that changes slowly or in
+    a way no valve model mimics. It fails where:
+
+    * the valve hardly moves (OP range below a few noise bands): ``'unknown'``;
+    * the load varies as fast as the loop and in step with the OP (a
+      disturbance at the loop's own period with reversals where the OP
+      reverses), which a dead band can partly mimic; the ``gain`` limit
+      guards against this, at the price of missing bands smaller than the
+      OP's noise;
+    * the PV is heavily compressed: a slip shows as a ramp between stored
+      points, and a short ``J`` is read as a dead band (``'undecided'`` or
+      ``'backlash'``);
+    * the process is neither integrating nor self-regulating over the record
+      (a cascade whose inner loop is slow, a process with inverse response).
+
+    References
+    ----------
+    See the module docstring.
+    """
+    if process not in ("integrating", "self-regulating"):
+        raise ValueError(f"process must be 'integrating' or 'self-regulating', not {process!r}")
+    h = float(sample_time)
+    if not (math.isfinite(h) and h > 0):
+        raise ValueError(f"sample_time must be a positive number of seconds, got {sample_time!r}")
+    pv = np.asarray(pv, dtype=float).ravel()
+    op = np.asarray(op, dtype=float).ravel()
+    if pv.size != op.size:
+        raise ValueError(f"pv has {pv.size} samples but op has {op.size}")
+    if not (np.all(np.isfinite(pv)) and np.all(np.isfinite(op))):
+        raise ValueError("pv and op must be finite (pass one gap-free stretch)")
+    base = dict(process=process, sample_time=h)
+    if pv.size < 64:
+        return ValveSignature(verdict="unknown", reason=f"only {pv.size} samples (need 64)",
+                              samples=int(pv.size), **base)
+    start = _most_active(op, max_samples)
+    pv = pv[start:start + max_samples]
+    op = op[start:start + max_samples]
+    n = pv.size
+    op_noise = white_noise_std(op)
+    pv_noise = white_noise_std(pv)
+    band = NOISE_REVERSAL * op_noise
+    lo, hi = np.percentile(op, [1, 99])
+    op_range = float(hi - lo)
+    base.update(samples=int(n), start=int(start), noise_band=band)
+    if op_range <= max(2.0 * band, 1e-9):
+        return ValveSignature(verdict="unknown",
+                              reason=f"the OP hardly moves (range {op_range:.3g} against a noise "
+                                     f"band of {band:.3g})", **base)
+    # the target and the operator that takes a valve position to it
+    if process == "integrating":
+        w = _slope_window(pv, h, pv_noise)
+        y = (pv[2 * w:] - pv[:-2 * w]) / (2 * w * h)
+
+        def target(V):
+            cs = np.concatenate([np.zeros((V.shape[0], 1)), np.cumsum(V, axis=1)], axis=1)
+            return (cs[:, 2 * w:n] - cs[:, :n - 2 * w]) / (2 * w)
+    else:
+        w = 0
+        y = pv.copy()
+
+        def target(V):
+            return V
+    N = y.size
+    knot_s = max(1800.0, 3.0 * period if math.isfinite(period) else 0.0)
+    knots = int(np.clip(round(N * h / knot_s) + 1, 2, 10))
+    P = _hats(N, knots)
+    blocks = np.minimum((np.arange(N) * _BLOCKS) // N, _BLOCKS - 1)
+    scorer = _Scorer(y, P, blocks % 2 == 0)
+    if scorer.var_test <= 0:
+        return ValveSignature(verdict="unknown", reason="the PV does not change", **base)
+    tmax = min(600.0, 0.05 * n * h)
+    lags = [0.0] + ([float(x) for x in np.geomspace(h, tmax, 8)] if tmax > h else [])
+    delays = [d for d in _DELAYS if d <= n // 20]
+
+    # 1. linear valve, every (dead time, lag)
+    Zl, combos = _dynamics(target(op[None, :]), delays, lags, h)
+    trl, tel, bl, cl = scorer.score(Zl[0])
+    il = int(np.argmin(trl))
+    d_lin, tau_lin = combos[il]
+    r2_lin = 1.0 - tel[il] / scorer.var_test
+    # 2. nonlinear valves with dynamics no slower than the linear valve's
+    S_grid = np.geomspace(max(0.1, 0.5 * band), max(0.8 * op_range, 0.2), 14)
+    SS, JJ = np.meshgrid(S_grid, _JS, indexing="ij")
+    SS, JJ = np.r_[0.0, SS.ravel()], np.r_[0.0, (SS * JJ).ravel()]      # row 0: linear
+    V = apply_valve("kano", np.tile(op, (SS.size, 1)), S=SS, J=JJ, noise_band=band)
+    # (a dead band adds a delay of its own: the nonlinear valve's dynamics may
+    # not delay more, on average, than the linear valve's)
+    budget = d_lin * h + tau_lin + 1e-9
+    pairs = []
+    for d in delays:
+        ok = [t for t in lags if d * h + t <= budget]
+        pairs += [(d, t) for t in ok[-2:]]
+    TV = target(V)
+    Zn = np.stack([_dynamics(TV, [d], [t], h)[0][:, 0] for d, t in pairs], axis=1)
+    sub = pairs
+    m, k, _ = Zn.shape
+    trn, ten, bn, cn = scorer.score(Zn.reshape(m * k, N))
+    ibest = int(np.argmin(trn))
+    iv, ik = divmod(ibest, k)
+    S, J = float(SS[iv]), float(JJ[iv])
+    gain = 1.0 - ten[ibest] / tel[il] if tel[il] > 0 else 0.0
+    r2_val = 1.0 - ten[ibest] / scorer.var_test
+    # stiction against backlash: the best of each family on the training blocks
+    fam_j = JJ[np.arange(m * k) // k] > 0
+    fam_b = (JJ[np.arange(m * k) // k] == 0) & (SS[np.arange(m * k) // k] > 0)
+    ib = int(np.argmin(np.where(fam_b, trn, np.inf)))
+    ij = int(np.argmin(np.where(fam_j, trn, np.inf)))
+    kind_gain = 1.0 - ten[ij] / ten[ib] if ten[ib] > 0 else 0.0
+    # what the PV says the valve did, in OP units, for the plot
+    d_b, tau_b = sub[ik]
+    bb = bn[ibest]
+    drift = P @ cn[ibest]
+    implied_t = (y - drift) / bb if bb != 0 else np.full(N, np.nan)
+    # align the implied valve with the OP it answers (undo the dead time)
+    sl = slice(w, n - w) if w else slice(0, n)
+    op_v, fit_v = op[sl], V[iv][sl]
+    if d_b:
+        implied_t = np.r_[implied_t[d_b:], np.full(d_b, np.nan)]
+    moved = np.abs(np.diff(V[iv])) < 1e-12
+    drift_op = np.abs(op[1:] - _stick_point(V[iv], op)[1:]) > band
+    stuck_share = float(np.mean(moved & drift_op))
+    base.update(window=int(w), gain=float(gain), r2_linear=float(r2_lin), r2_valve=float(r2_val),
+                kind_gain=float(kind_gain), S=S, J=J, dead_time=d_b * h, lag=float(tau_b),
+                stuck_share=stuck_share, op=op_v, implied=implied_t, fitted=fit_v)
+    lim = SIGNATURE_LIMITS
+    if r2_lin < 0.1 and r2_val < 0.2 and op_range >= lim["dead_op_range"]:
+        return ValveSignature(
+            verdict="no-response",
+            reason=(f"the OP moved over {op_range:.3g} % and the PV did not answer (held-out R2 "
+                    f"{r2_lin:.2f} linear, {r2_val:.2f} with a sticky valve)"), **base)
+    if gain < lim["gain"] or r2_val < lim["r2"] or S < lim["band_over_noise"] * band:
+        why = (f"the valve follows the OP: a sticky or loose valve removes {100 * gain:.0f}% of a "
+               f"linear valve's held-out error (R2 {r2_lin:.2f} linear, {r2_val:.2f} nonlinear)")
+        if gain >= lim["gain"] and r2_val >= lim["r2"]:
+            why = (f"the band found ({S:.2g}) is within the OP's noise band ({band:.2g}): no valve "
+                   "nonlinearity beyond the noise")
+        return ValveSignature(verdict="linear", reason=why, **base)
+    fig = (f"a {'sticky' if J > 0 else 'loose'} valve explains the PV (removes {100 * gain:.0f}% "
+           f"of a linear valve's held-out error; S {S:.2g}, J {J:.2g}, R2 {r2_val:.2f})")
+    if J >= lim["jump_ratio"] * S and kind_gain >= lim["kind_gain"]:
+        return ValveSignature(verdict="stiction", reason=fig + f"; the slip jump removes "
+                              f"{100 * kind_gain:.0f}% of a dead band's error", **base)
+    if J == 0.0 or kind_gain <= 0.0:
+        return ValveSignature(verdict="backlash", reason=fig + "; a dead band without a slip "
+                              "jump explains it as well", **base)
+    return ValveSignature(verdict="undecided", reason=fig + f"; a slip jump helps only "
+                          f"{100 * kind_gain:.0f}%: sticky or loose cannot be told", **base)
+
+
+def _stick_point(x: np.ndarray, op: np.ndarray) -> np.ndarray:
+    """For each sample, the OP at which the valve last moved."""
+    moved = np.r_[True, np.abs(np.diff(x)) >= 1e-12]
+    idx = np.where(moved, np.arange(x.size), 0)
+    np.maximum.accumulate(idx, out=idx)
+    return op[idx]
+
+
+def horch_correlation(pv, op, sample_time: float, period: float) -> float:
+    """Horch's test: the OP-PV cross-correlation's asymmetry about lag zero.
+
+    Parameters
+    ----------
+    pv, op : array_like, shape (n,)
+        One gap-free oscillating stretch.
+    sample_time : float
+        [s]
+    period : float
+        Oscillation period [s].
+
+    Returns
+    -------
+    float
+        ``|r(0)| / max |r(tau)|`` over lags within half a period: near 0 the
+        correlation is odd (stiction on a self-regulating loop, the PV a
+        square wave a quarter period from a triangular OP), near 1 even (a
+        linear oscillation, OP and PV in anti-phase). NaN when it cannot be
+        computed.
+
+    Notes
+    -----
+    Horch (1999) [4]_ assumes a self-regulating process that is fast against
+    the oscillation; on an integrating process (a level) the PV integrates
+    the valve and the test reads every oscillation as stiction, so it is
+    evidence only on self-regulating loops.
+    """
+    x = np.asarray(pv, dtype=float)
+    u = np.asarray(op, dtype=float)
+    if x.size < 16 or not (math.isfinite(period) and period > 0):
+        return math.nan
+    x = x - x.mean()
+    u = u - u.mean()
+    den = math.sqrt(float(x @ x) * float(u @ u))
+    if den <= 0:
+        return math.nan
+    L = max(1, min(x.size // 4, int(round(0.5 * period / sample_time))))
+    r = np.array([float(u[max(0, -k):x.size - max(0, k)] @ x[max(0, k):x.size - max(0, -k)])
+                  for k in range(-L, L + 1)]) / den
+    peak = float(np.max(np.abs(r)))
+    return abs(float(r[L])) / peak if peak > 0 else math.nan
