@@ -335,6 +335,14 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     * the PV is heavily compressed: a slip shows as a ramp between stored
       points, and a short ``J`` is read as a dead band (``'undecided'`` or
       ``'backlash'``);
+    * the valve sticks when the OP comes to rest (Kano's rest sticking) and
+      the OP is noisy: the fitted actuator ignores OP noise within its noise
+      band, so it never sees the rest, and a staircase of small OP steps is
+      read as a linear valve behind a lag;
+    * the slope of a level is read over ``2 window`` samples: at 20 samples
+      per period a sticky valve's jump is smeared and a lagged linear valve
+      explains it almost as well (the Backlash Index is the better evidence
+      there);
     * the process is neither integrating nor self-regulating over the record
       (a cascade whose inner loop is slow, a process with inverse response).
 
@@ -404,22 +412,35 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     d_lin, tau_lin = combos[il]
     r2_lin = 1.0 - tel[il] / scorer.var_test
     # 2. nonlinear valves with dynamics no slower than the linear valve's
-    S_grid = np.geomspace(max(0.1, 0.5 * band), max(0.8 * op_range, 0.2), 14)
-    SS, JJ = np.meshgrid(S_grid, _JS, indexing="ij")
-    SS, JJ = np.r_[0.0, SS.ravel()], np.r_[0.0, (SS * JJ).ravel()]      # row 0: linear
-    V = apply_valve("kano", np.tile(op, (SS.size, 1)), S=SS, J=JJ, noise_band=band)
     # (a dead band adds a delay of its own: the nonlinear valve's dynamics may
     # not delay more, on average, than the linear valve's)
     budget = d_lin * h + tau_lin + 1e-9
-    pairs = []
-    for d in delays:
-        ok = [t for t in lags if d * h + t <= budget]
-        pairs += [(d, t) for t in ok[-2:]]
-    TV = target(V)
-    Zn = np.stack([_dynamics(TV, [d], [t], h)[0][:, 0] for d, t in pairs], axis=1)
-    sub = pairs
-    m, k, _ = Zn.shape
-    trn, ten, bn, cn = scorer.score(Zn.reshape(m * k, N))
+    pairs = [(d, t) for d in delays for t in lags if d * h + t <= budget]
+
+    def fit_valves(SS, JJ, pairs):
+        V = apply_valve("kano", np.tile(op, (SS.size, 1)), S=SS, J=JJ, noise_band=band)
+        TV = target(V)
+        res = [scorer.score(_dynamics(TV, [d], [t], h)[0][:, 0]) for d, t in pairs]
+        return (V,) + tuple(np.stack([r[i] for r in res], axis=1) for i in range(4))
+
+    # a) a coarse valve grid over every (dead time, lag) within the budget:
+    # the best dynamics of a dead band and of a valve with a slip jump
+    Sc = np.geomspace(max(0.1, 0.5 * band), max(0.8 * op_range, 0.2), 7)
+    Jc = np.r_[0.0 * Sc, 0.5 * Sc, Sc]
+    _, tr, _, _, _ = fit_valves(np.r_[Sc, Sc, Sc], Jc, pairs)
+    near = set()
+    for fam in (Jc == 0, Jc > 0):
+        d0, t0 = pairs[int(np.argmin(tr[fam].min(axis=0)))]
+        near |= {(d0, t) for t in (t0, 0.7 * t0, 1.4 * t0) if d0 * h + t <= budget}
+    sub = sorted(near)
+    # b) the fine valve grid at those dynamics
+    S_grid = np.geomspace(max(0.1, 0.5 * band), max(0.8 * op_range, 0.2), 14)
+    SS, JJ = np.meshgrid(S_grid, _JS, indexing="ij")
+    SS, JJ = np.r_[0.0, SS.ravel()], np.r_[0.0, (SS * JJ).ravel()]      # row 0: linear
+    V, trn, ten, bn, cn = fit_valves(SS, JJ, sub)
+    m, k = trn.shape
+    trn, ten, bn = trn.ravel(), ten.ravel(), bn.ravel()
+    cn = cn.reshape(m * k, -1)
     ibest = int(np.argmin(trn))
     iv, ik = divmod(ibest, k)
     S, J = float(SS[iv]), float(JJ[iv])

@@ -328,7 +328,6 @@ def _dead_response(rng, h, length, compressed, noise_pct, p):
     """A PV that does not answer (a valve stuck shut, a closed block valve, a dead
     transmitter) while a PI controller moves its OP over tens of percent."""
     n = int(length / h)
-    t = np.arange(n) * h
     level = float(rng.choice((0.0, rng.uniform(10, 90))))
     noisy = rng.random() < 0.5
     pv = np.full(n, level) + (rng.normal(0, 0.05, n) if noisy else 0.0)

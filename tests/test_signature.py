@@ -1,0 +1,130 @@
+"""Valve signature: hand-built valve traces (parallelogram, staircase, ellipse) and disturbances."""
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+from valvediag import classify_loop, simulate_loop
+from valvediag.analysis.signature import horch_correlation, valve_signature
+from valvediag.models.valves import apply_valve
+
+H = 1.0
+
+
+def _triangle(n, period, amp=5.0):
+    t = np.arange(n) * H
+    return 50.0 + amp * 2 / np.pi * np.arcsin(np.sin(2 * np.pi * t / period))
+
+
+def _noisy(op, noise=0.01):
+    """The recorded OP: a real OP carries the PV's noise (the actuator does not follow it)."""
+    return op + np.random.default_rng(7).normal(0, noise, op.size)
+
+
+def _lag(x, tau):
+    a = np.exp(-H / tau)
+    return lfilter([1 - a], [1, -a], x - x[0]) + x[0]
+
+
+def _flow(valve, op, noise=0.05, tau=5.0, seed=0):
+    """A fast self-regulating process (a flow): PV = 2 x lagged valve position + noise."""
+    rng = np.random.default_rng(seed)
+    return 2.0 * _lag(valve, tau) + rng.normal(0, noise, op.size)
+
+
+def test_parallelogram_of_a_sticky_valve_is_stiction_with_its_size():
+    op = _triangle(3000, 300.0)
+    pv = _flow(apply_valve("kano", op, S=3.0, J=1.5), op)
+    s = valve_signature(pv, _noisy(op), H, process="self-regulating")
+    assert s.verdict == "stiction", s.reason
+    assert s.S == pytest.approx(3.0, rel=0.3) and s.J == pytest.approx(1.5, rel=0.5)
+    assert s.gain > 0.8 and s.r2_valve > 0.95 and s.stuck_share > 0.05
+
+
+def test_dead_band_without_jump_is_backlash():
+    op = _triangle(3000, 300.0)
+    pv = _flow(apply_valve("backlash", op, DB=3.0), op)
+    s = valve_signature(pv, _noisy(op), H, process="self-regulating")
+    assert s.verdict == "backlash", s.reason
+    assert s.J == 0.0 and s.S == pytest.approx(3.0, rel=0.3)
+
+
+def test_ellipse_of_a_linear_valve_behind_a_lag_is_linear():
+    # a sine OP through a lag: PV against OP is an ellipse, not a valve fault
+    t = np.arange(3000) * H
+    op = 50 + 5 * np.sin(2 * np.pi * t / 200.0)
+    pv = _flow(op, op, tau=20.0)
+    s = valve_signature(pv, _noisy(op), H, process="self-regulating")
+    assert s.verdict == "linear", s.reason
+    assert s.r2_linear > 0.99 and s.gain < 0.4
+
+
+def test_level_slope_of_a_sticky_valve_is_stiction_and_of_a_linear_valve_is_linear():
+    # an integrating process (a level): the PV slope is flat while the valve
+    # sticks at each reversal of the OP, then jumps by J
+    op = _triangle(4000, 800.0, amp=6.0)
+    valve = apply_valve("kano", op, S=2.0, J=1.5)
+    rng = np.random.default_rng(1)
+    pv = np.cumsum(0.05 * (valve - 50.0)) + rng.normal(0, 0.01, op.size)
+    s = valve_signature(pv, _noisy(op), H, process="integrating")
+    assert s.verdict == "stiction", s.reason
+    assert s.S == pytest.approx(2.0, rel=0.3)
+    lin = valve_signature(np.cumsum(0.05 * (op - 50.0)) + rng.normal(0, 0.01, op.size),
+                          _noisy(op), H, process="integrating")
+    assert lin.verdict == "linear", lin.reason
+
+
+def test_op_that_moves_and_pv_that_does_not_is_no_response():
+    op = _noisy(_triangle(3000, 600.0, amp=20.0))
+    pv = 30.0 + np.random.default_rng(2).normal(0, 0.05, op.size)
+    s = valve_signature(pv, op, H, process="self-regulating")
+    assert s.verdict == "no-response" and "did not answer" in s.reason
+
+
+def test_clipped_sine_load_on_a_level_loop_with_a_healthy_valve_is_not_a_valve_fault():
+    # a non-sinusoidal external disturbance: the PV is distorted, the valve is linear
+    n, h = 20000, 1.0
+    t = np.arange(n) * h
+    load = np.clip(1.6 * np.sin(2 * np.pi * t / 400.0), -1, 1) * 2.0
+    sim = simulate_loop(process="integrating", valve="linear", sample_time=h, n_samples=n,
+                        kc=2.0, ti=200.0, tau=100.0, load_profile=load, noise_std=0.002,
+                        seed=3)
+    pv, op = sim.pv[4000:], sim.op[4000:]
+    d = classify_loop(pv, op, sample_time=h, process_type="integrating")
+    assert d.verdict == "linear-oscillation", d.reason
+    assert d.evidence["signature"]["verdict"] == "linear"
+
+
+def test_horch_odd_for_square_against_triangle_even_for_anti_phase_sines():
+    t = np.arange(4000) * H
+    op = _triangle(4000, 400.0)
+    square = np.sign(np.sin(2 * np.pi * (t - 100.0) / 400.0))
+    assert horch_correlation(square, op, H, 400.0) < 0.3
+    sine = np.sin(2 * np.pi * t / 400.0)
+    assert horch_correlation(-sine, sine, H, 400.0) > 0.9
+
+
+@pytest.mark.parametrize("kw, msg", [
+    (dict(process="level"), "process must be"),
+    (dict(process="integrating", sample_time=0.0), "sample_time"),
+])
+def test_bad_arguments_name_the_problem(kw, msg):
+    args = dict(sample_time=1.0)
+    args.update(kw)
+    with pytest.raises(ValueError, match=msg):
+        valve_signature(np.zeros(100), np.zeros(100), **args)
+
+
+def test_short_or_still_records_are_unknown():
+    assert valve_signature(np.arange(10.0), np.arange(10.0), 1.0,
+                           process="integrating").verdict == "unknown"
+    s = valve_signature(np.random.default_rng(0).normal(size=500), np.full(500, 40.0), 1.0,
+                        process="self-regulating")
+    assert s.verdict == "unknown" and "hardly moves" in s.reason
+
+
+def test_plot_draws_the_signature():
+    op = _triangle(2000, 300.0)
+    s = valve_signature(_flow(apply_valve("kano", op, S=3.0, J=1.5), op), _noisy(op), H,
+                        process="self-regulating")
+    ax = s.plot()
+    assert len(ax.lines) == 2 and ax.get_xlabel().startswith("OP")
