@@ -6,7 +6,9 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
 
 1. ``insufficient-data``: too little usable data (gaps, a frozen PV, too few
    cycles, too few samples per cycle); the reason says which.
-2. ``no-oscillation``: no regular oscillation.
+2. ``no-oscillation``: no regular oscillation, and no stick-slip events
+   (:func:`valvediag.analysis.signature.stick_slip_events`: a sticky valve
+   without a limit cycle gets ``stiction`` from its slips).
 3. ``linear-oscillation``: a regular oscillation that no valve nonlinearity
    explains (tuning or an external disturbance); send no one to the valve.
    A sinusoidal PV, an OP that stands still, or a valve position implied by
@@ -28,7 +30,8 @@ import numpy as np
 from .bi import THRESHOLDS, BacklashIndex, backlash_index
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import Oscillation, detect_oscillation
-from .signature import ValveSignature, horch_correlation, valve_signature
+from .quality import white_noise_std
+from .signature import ValveSignature, horch_correlation, stick_slip_events, valve_signature
 
 __all__ = ["classify_loop", "LoopDiagnosis", "integrating_screen"]
 
@@ -83,6 +86,57 @@ def follows_op(sig: ValveSignature, period: float) -> bool:
                 and period / sig.sample_time >= FOLLOWS_RESOLUTION * 2 * sig.window)
     return bool(resolved and sig.verdict == "linear" and sig.r2_linear >= FOLLOWS_R2
                 and sig.gain < FOLLOWS_GAIN)
+
+
+#: OP travel [OP unit] that a PV must answer before its silence is a dead response.
+DEAD_OP_RANGE = 10.0
+
+
+def dead_response(pv, op, sp=None) -> str:
+    """A PV that does not answer its loop: the reason, or ``''``.
+
+    Parameters
+    ----------
+    pv, op : numpy.ndarray
+        One gap-free stretch [PV unit, OP unit].
+    sp : numpy.ndarray, optional
+        Set point over the same samples [PV unit].
+
+    Returns
+    -------
+    str
+        One sentence when the OP travels at least ``DEAD_OP_RANGE`` (1-99 %
+        range) and the PV stays put: it never changes, or the set point
+        moves by more than five times the PV's noise while the PV moves by
+        less than a fifth of that. Empty otherwise.
+
+    Notes
+    -----
+    The data alone cannot tell a valve stuck shut from a closed block valve,
+    a dead transmitter or a loop whose OP is not wired to this valve; the
+    sentence says so, as an action item with its evidence, rather than a
+    valve verdict read from a shape. A good loop holding its PV at a fixed
+    set point against a changing load also moves its OP while the PV stays
+    put, so without set-point moves only a PV that never changes at all
+    counts.
+    """
+    lo, hi = np.percentile(op, [1, 99])
+    op_range = float(hi - lo)
+    if op_range < DEAD_OP_RANGE:
+        return ""
+    where = ("a valve stuck shut, a closed block or bypass valve, a dead transmitter or an OP "
+             "wired elsewhere; the data cannot tell which: check on site")
+    if np.ptp(pv) == 0:
+        return (f"the PV does not change while the OP travels over {op_range:.3g} %: {where}")
+    if sp is None or not np.all(np.isfinite(sp)):
+        return ""
+    sp_range = float(np.subtract(*np.percentile(sp, [99, 1])))
+    pv_range = float(np.subtract(*np.percentile(pv, [99, 1])))
+    noise = white_noise_std(pv)
+    if sp_range > 5.0 * noise and sp_range > 0 and pv_range < 0.2 * sp_range:
+        return (f"the PV does not answer: the set point moves over {sp_range:.3g} and the OP "
+                f"over {op_range:.3g} %, the PV over only {pv_range:.3g}: {where}")
+    return ""
 
 
 def _self_regulating_verdict(verdict, x, u, h, osc, src, c_data, ev, **kw):
@@ -379,6 +433,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return verdict("insufficient-data", 0.95,
                        f"only {b - a} consecutive usable samples (need at least {MIN_SAMPLES})")
     x, u = pv[a:b], op[a:b]
+    dead = dead_response(x, u, sp[a:b] if sp is not None else None)
+    if dead:
+        ev["dead_response"] = True
+        return verdict("insufficient-data", 0.9, dead, pv=x, op=u)
     if np.ptp(x) == 0:
         return verdict("insufficient-data", 0.9, "the PV does not change: frozen sensor or no data",
                        pv=x, op=u)
@@ -390,18 +448,32 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     common = dict(period=osc.period, amplitude=osc.amplitude, cycles=osc.cycles,
                   regularity=osc.regularity, oscillation=osc, pv=x, op=u)
     looks_periodic = osc.acf_at_period > 0.3 and np.isfinite(osc.period)
+    quiet = None
     if not np.isfinite(osc.period) or osc.cycles < 1.5:
         if looks_periodic:
             return verdict("insufficient-data", 0.7,
                            f"only {osc.cycles:.1f} cycles of an oscillation of about "
                            f"{osc.period:.4g} s; need at least {min_cycles:g}", **common)
-        return verdict("no-oscillation", 0.8, "no oscillation: the PV has no repeating cycle",
-                       **common)
-    if not osc.is_regular:
-        conf = 0.6 + 0.3 * min(1.0, max(0.0, 1.0 - osc.regularity))
-        return verdict("no-oscillation", conf,
-                       f"no regular oscillation (regularity {osc.regularity:.2f}, "
-                       f"autocorrelation at one period {osc.acf_at_period:.2f})", **common)
+        quiet = (0.8, "no oscillation: the PV has no repeating cycle")
+    elif not osc.is_regular:
+        quiet = (0.6 + 0.3 * min(1.0, max(0.0, 1.0 - osc.regularity)),
+                 f"no regular oscillation (regularity {osc.regularity:.2f}, "
+                 f"autocorrelation at one period {osc.acf_at_period:.2f})")
+    if quiet is not None:
+        # no limit cycle: a sticky valve may still show itself by its slips
+        ev_sp = sp[a:b] if sp is not None else None
+        kinds = (process_type,) if process_type != "unknown" else \
+            ("self-regulating", "integrating")
+        for kind in kinds:
+            slips = stick_slip_events(x, u, h, process=kind, sp=ev_sp)
+            if slips.found:
+                ev.update(stick_slip=slips.as_dict(), process_screen=kind)
+                src = "loop registry" if process_type != "unknown" else "assumed"
+                return verdict("stiction", 0.5 + 0.4 * min(1.0, slips.consistent / 10.0),
+                               f"stick-slip events without a limit cycle: {slips.reason} "
+                               f"({kind} process, {src}); method: stick-slip events",
+                               **common)
+        return verdict("no-oscillation", quiet[0], quiet[1], **common)
     if spp < MIN_SAMPLES_PER_PERIOD:
         return verdict("insufficient-data", 0.8,
                        f"only {spp:.1f} samples per oscillation period; the waveform is lost "
@@ -459,12 +531,18 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     lo, hi = bres.thresholds
     sig = valve_signature(x, u, h, process="integrating", period=osc.period)
     ev["signature"] = sig.as_dict()
-    if follows_op(sig, osc.period):
-        return verdict("linear-oscillation", c_data * proc_conf * (0.5 + 0.5 * sig.r2_linear),
-                       "the valve position implied by the PV slope follows the OP (held-out R2 "
-                       f"{sig.r2_linear:.2f} with a linear valve; a sticky or loose valve removes "
-                       f"only {max(0.0, 100 * sig.gain):.0f}% of the rest): a disturbance or the "
-                       f"tuning, not the valve, although the Backlash Index reads {bres.bi:.2f}",
+    curved = np.isfinite(sev["ramp_curvature"]) and sev["ramp_curvature"] >= RAMP_CURVATURE_MAX
+    if follows_op(sig, osc.period) or (curved and sig.verdict == "linear"):
+        why = (f"the valve position implied by the PV slope follows the OP (held-out R2 "
+               f"{sig.r2_linear:.2f} with a linear valve; a sticky or loose valve removes only "
+               f"{max(0.0, 100 * sig.gain):.0f}% of the rest)")
+        if curved:
+            why += (f", and the PV does not run in the straight ramps the Backlash Index "
+                    f"assumes (curvature {sev['ramp_curvature']:.3f})")
+        return verdict("linear-oscillation",
+                       c_data * proc_conf * (0.5 + 0.4 * max(0.0, sig.r2_linear)),
+                       f"{why}: a disturbance or the tuning, not the valve, although the "
+                       f"Backlash Index reads {bres.bi:.2f}",
                        process_screen=pscreen, bi=bres.bi, shape=shape, backlash=bres, **common)
     bres_verdict = bres.verdict
     if bres.verdict == "stiction":

@@ -59,7 +59,8 @@ from scipy.signal import lfilter
 from ..models.valves import apply_valve
 from .quality import white_noise_std
 
-__all__ = ["ValveSignature", "valve_signature", "horch_correlation", "SIGNATURE_LIMITS"]
+__all__ = ["ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_events",
+           "horch_correlation", "SIGNATURE_LIMITS"]
 
 #: Decision limits of :func:`valve_signature` (calibrated on the development
 #: set of ``benchmarks/bench_realistic.py``, seed 1).
@@ -543,3 +544,212 @@ def horch_correlation(pv, op, sample_time: float, period: float) -> float:
                   for k in range(-L, L + 1)]) / den
     peak = float(np.max(np.abs(r)))
     return abs(float(r[L])) / peak if peak > 0 else math.nan
+
+
+@dataclass(frozen=True)
+class StickSlipEvents:
+    """Slips of a sticky valve found one by one, without a limit cycle.
+
+    Attributes
+    ----------
+    process : str
+        ``'integrating'`` (slips of the PV slope) or ``'self-regulating'``
+        (slips of the PV).
+    found : bool
+        Enough slips, enough of them in the direction the OP had been moving.
+    reason : str
+        One sentence.
+    events : int
+        Jumps of the PV (or its slope) beyond six noise standard deviations
+        that the OP did not make.
+    consistent : int
+        Of those, slips: the OP had moved towards the jump by more than its
+        noise band over the half of the stretch before it, while the PV
+        stayed within a third of the jump.
+    op_travel : float
+        Median OP travel before a slip [OP unit]: about the slip jump ``J``
+        (after a rest) or the stick band ``S`` (after a reversal).
+    index : numpy.ndarray
+        Sample index of each slip.
+    step : int
+        Samples over which a jump was measured.
+    """
+
+    process: str
+    found: bool
+    reason: str
+    events: int = 0
+    consistent: int = 0
+    op_travel: float = math.nan
+    index: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
+    step: int = 1
+    pv: np.ndarray | None = field(default=None, repr=False)
+    op: np.ndarray | None = field(default=None, repr=False)
+    sample_time: float = 1.0
+
+    def as_dict(self) -> dict:
+        """The figures as plain types."""
+        return {"found": self.found, "events": self.events, "consistent": self.consistent,
+                "op_travel": None if not math.isfinite(self.op_travel)
+                else round(float(self.op_travel), 4), "step": self.step}
+
+    def plot(self, ax=None):
+        """PV and OP with the slips marked.
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(9, 3.5))
+        if self.pv is None:
+            ax.text(0.5, 0.5, self.reason, ha="center", va="center", transform=ax.transAxes)
+            return ax
+        t = np.arange(self.pv.size) * self.sample_time
+        ax.plot(t, self.pv, lw=0.7, color="C0", label="PV")
+        ax.plot(t[self.index], self.pv[self.index], "o", mfc="none", color="C3", label="slip")
+        ax2 = ax.twinx()
+        ax2.plot(t, self.op, lw=0.6, color="C1", alpha=0.7)
+        ax2.set_ylabel("OP")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("PV")
+        ax.set_title(f"{self.consistent} of {self.events} jumps are slips")
+        return ax
+
+
+#: Fewest slips, and the least share of the PV's jumps that must be slips.
+MIN_SLIPS = 3
+MIN_SLIP_SHARE = 0.75
+
+
+def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
+                      ) -> StickSlipEvents:
+    """Find a sticky valve by its slips: the error grows, the OP creeps, the PV jumps back.
+
+    Parameters
+    ----------
+    pv, op : array_like, shape (n,)
+        One gap-free stretch [PV unit, OP unit].
+    sample_time : float
+        [s]
+    process : {'integrating', 'self-regulating'}
+        An integrating process slips in the PV's slope, a self-regulating one
+        in the PV.
+    sp : array_like, shape (n,), optional
+        Set point [PV unit]. Without it the median PV stands in (a loop in
+        automatic holds its PV about a constant set point).
+
+    Returns
+    -------
+    StickSlipEvents
+
+    Notes
+    -----
+    Stick detection in the manner of Kano et al. (2004) [1]_, for records
+    without a limit cycle. While a sticky valve holds, the load moves the PV
+    away from its set point and the controller's output creeps to correct
+    it, to no effect; then the valve slips and the PV (on a level: its
+    slope) jumps *towards the set point*. A jump counts as a slip when
+
+    * the set point did not move over the stretch before it and during it;
+    * the OP moved by more than its noise band over that stretch;
+    * the control error had grown over that stretch, and the jump reduces it
+      (a self-regulating PV jumps by no more than the error it closes; a
+      level's slope turns towards the set point).
+
+    A load step makes the PV jump *away* from its set point, and a set-point
+    step moves the set point first, so neither counts. This needs no process
+    gain or controller sign: in a working loop the correction always points
+    back to the set point. The jump is measured over 2, 8 or 32 samples (the
+    step that finds the most slips), which covers process lags up to about
+    30 samples.
+
+    It fails where a valve's slips are smaller than six noise standard
+    deviations of the PV (or its slope), where a slow process spreads a
+    slip over more than 32 samples, on a loose valve (a dead band makes no
+    jump), and where the set point is missing and moves.
+    """
+    if process not in ("integrating", "self-regulating"):
+        raise ValueError(f"process must be 'integrating' or 'self-regulating', not {process!r}")
+    h = float(sample_time)
+    pv = np.asarray(pv, dtype=float).ravel()
+    op = np.asarray(op, dtype=float).ravel()
+    base = dict(process=process, sample_time=h, pv=pv, op=op)
+    if pv.size < 64 or pv.size != op.size:
+        return StickSlipEvents(found=False, reason=f"only {pv.size} samples", **base)
+    if sp is None or not np.all(np.isfinite(sp)):
+        sp = np.full(pv.size, float(np.median(pv)))
+    sp = np.asarray(sp, dtype=float).ravel()
+    err = sp - pv
+    band = NOISE_REVERSAL * white_noise_std(op)
+    pv_noise = white_noise_std(pv)
+    if process == "integrating":
+        w = min(_slope_window(pv, h, pv_noise), 16)
+        y = np.r_[np.full(w, np.nan), (pv[2 * w:] - pv[:-2 * w]) / (2 * w * h),
+                  np.full(w, np.nan)]
+        noise = pv_noise * math.sqrt(2.0) / (2 * w * h)
+        steps = (2 * w,)
+    else:
+        y = pv
+        noise = pv_noise
+        steps = (2, 8, 32)
+    if not noise > 0:
+        return StickSlipEvents(found=False, reason="the PV has no measurable noise", **base)
+    best = None
+    for L in steps:
+        found = _slips(y, op, err, sp, L, 6.0 * noise * math.sqrt(2.0), band,
+                       3.0 * pv_noise, process == "integrating")
+        if found is not None and (best is None or found[1].sum() > best[1][1].sum()):
+            best = (L, found)
+    if best is None:
+        return StickSlipEvents(found=False, reason="no jump of the PV beyond its noise",
+                               **base)
+    L, (idx, ok, travel) = best
+    n_ok = int(ok.sum())
+    share = n_ok / idx.size
+    is_sticky = n_ok >= MIN_SLIPS and share >= MIN_SLIP_SHARE
+    op_travel = float(np.median(travel[ok])) if n_ok else math.nan
+    what = "slope of the PV" if process == "integrating" else "PV"
+    if is_sticky:
+        reason = (f"{n_ok} of {idx.size} jumps of the {what} are slips: each time the error grew "
+                  f"while the OP crept about {op_travel:.2g} %, then the {what} jumped back "
+                  "towards the set point")
+    else:
+        reason = (f"{n_ok} of {idx.size} jumps of the {what} are slips (need {MIN_SLIPS} and "
+                  f"{100 * MIN_SLIP_SHARE:.0f}% of them)")
+    return StickSlipEvents(found=is_sticky, reason=reason, events=int(idx.size),
+                           consistent=n_ok, op_travel=op_travel, index=idx[ok], step=L, **base)
+
+
+def _slips(y, op, err, sp, L, thr, band, err_min, integrating):
+    """Jumps of ``y`` over ``L`` samples beyond ``thr``: (index, is-slip, OP travel) or None."""
+    d = y[L:] - y[:-L]
+    big = np.abs(np.nan_to_num(d)) > thr
+    if not big.any():
+        return None
+    # one event per run of large differences, at its largest
+    edges = np.flatnonzero(np.diff(np.r_[0, big.astype(np.int8), 0]))
+    starts, stops = edges[::2], edges[1::2]
+    idx = np.array([a + int(np.argmax(np.abs(d[a:b]))) for a, b in zip(starts, stops)])
+    n = y.size
+    prev = np.r_[0, idx[:-1] + L]
+    travel = np.zeros(idx.size)
+    ok = np.zeros(idx.size, bool)
+    sp_tol = max(err_min, 1e-12)
+    for i, (k, p) in enumerate(zip(idx, prev)):
+        m = max(2 * L, (k - p) // 2)
+        a = max(0, k - m)
+        q = max(2, min(L, m // 4))
+        e_start = float(np.mean(err[a:a + q]))
+        e_before = float(np.mean(err[max(a, k - q):k + 1]))
+        travel[i] = op[k] - op[a]
+        sp_still = np.ptp(sp[a:min(k + L + 1, n)]) <= sp_tol
+        grew = abs(e_before) >= err_min and abs(e_before) > abs(e_start)
+        towards = np.sign(d[k]) == np.sign(e_before)
+        if not integrating:
+            # the PV closes part of the error, it does not overshoot far past it
+            towards = towards and abs(d[k]) <= 3.0 * abs(e_before) + err_min
+        ok[i] = sp_still and abs(travel[i]) > band and grew and towards
+    return idx, ok, np.abs(travel)
