@@ -4,7 +4,7 @@ import pytest
 from scipy.signal import lfilter
 
 from valvediag import classify_loop, simulate_loop
-from valvediag.analysis.signature import horch_correlation, valve_signature
+from valvediag.analysis.signature import horch_correlation, stick_slip_events, valve_signature
 from valvediag.models.valves import apply_valve
 
 H = 1.0
@@ -128,3 +128,55 @@ def test_plot_draws_the_signature():
                         process="self-regulating")
     ax = s.plot()
     assert len(ax.lines) == 2 and ax.get_xlabel().startswith("OP")
+
+
+def _slip_record(towards_sp=True, n_events=5, seed=3):
+    """A flow loop at set point 50: between events the PV drifts 1.0 away from
+    the set point over 300 s while the OP creeps 1 %; then the PV jumps, back
+    towards the set point (a slip) or, for a load step, away from it."""
+    rng = np.random.default_rng(seed)
+    pv, op, out, start = [], [], 40.0, 50.0
+    for i in range(n_events):
+        side = 1.0 if i % 2 else -1.0
+        if towards_sp:
+            pv.append(np.linspace(start, 50.0 + side, 300))  # stuck: the error grows
+            op.append(out - np.linspace(0, side, 300))     # the controller creeps
+            pv.append(np.full(200, 50.0 - 0.3 * side))     # slip: back past the set point
+            op.append(np.full(200, out - side))
+            out -= side
+            start = 50.0 - 0.3 * side
+        else:
+            pv.append(np.full(300, 50.0))                  # on set point, OP quiet
+            op.append(np.full(300, out))
+            pv.append(50.0 + side * 1.2 * np.exp(-np.arange(200) / 40.0))  # a load step
+            op.append(out - side * 1.2 * (1 - np.exp(-np.arange(200) / 40.0)))
+    pv = np.concatenate(pv) + rng.normal(0, 0.02, 500 * n_events)
+    op = np.concatenate(op) + rng.normal(0, 0.01, 500 * n_events)
+    return pv, op, np.full(pv.size, 50.0)
+
+
+def test_slips_back_towards_the_set_point_are_stick_slip_events():
+    pv, op, sp = _slip_record()
+    e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp)
+    assert e.found and e.consistent >= 4, e.reason
+    assert e.op_travel == pytest.approx(1.0, rel=0.3)
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="self-regulating")
+    assert d.verdict == "stiction" and "stick-slip events" in d.reason
+
+
+def test_load_steps_away_from_the_set_point_are_not_slips():
+    pv, op, sp = _slip_record(towards_sp=False)
+    e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp)
+    assert not e.found and e.consistent == 0, e.reason
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="self-regulating")
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+
+
+def test_a_pv_that_ignores_set_point_moves_is_a_dead_response():
+    n = 4000
+    sp = 30.0 + 5.0 * (np.arange(n) // 1000 % 2)
+    pv = 30.0 + np.random.default_rng(4).normal(0, 0.05, n)
+    op = np.clip(20.0 + np.cumsum(sp - pv) * 0.01, 0, 100)
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="self-regulating")
+    assert d.verdict == "insufficient-data" and "does not answer" in d.reason
+    assert "check on site" in d.reason

@@ -451,16 +451,17 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     quiet = None
     if not np.isfinite(osc.period) or osc.cycles < 1.5:
         if looks_periodic:
-            return verdict("insufficient-data", 0.7,
-                           f"only {osc.cycles:.1f} cycles of an oscillation of about "
-                           f"{osc.period:.4g} s; need at least {min_cycles:g}", **common)
-        quiet = (0.8, "no oscillation: the PV has no repeating cycle")
+            quiet = ("insufficient-data", 0.7,
+                     f"only {osc.cycles:.1f} cycles of an oscillation of about "
+                     f"{osc.period:.4g} s; need at least {min_cycles:g}")
+        else:
+            quiet = ("no-oscillation", 0.8, "no oscillation: the PV has no repeating cycle")
     elif not osc.is_regular:
-        quiet = (0.6 + 0.3 * min(1.0, max(0.0, 1.0 - osc.regularity)),
+        quiet = ("no-oscillation", 0.6 + 0.3 * min(1.0, max(0.0, 1.0 - osc.regularity)),
                  f"no regular oscillation (regularity {osc.regularity:.2f}, "
                  f"autocorrelation at one period {osc.acf_at_period:.2f})")
-    if quiet is not None:
-        # no limit cycle: a sticky valve may still show itself by its slips
+    def slips_or(v, conf, reason):
+        """No limit cycle to judge: a sticky valve may still show itself by its slips."""
         ev_sp = sp[a:b] if sp is not None else None
         kinds = (process_type,) if process_type != "unknown" else \
             ("self-regulating", "integrating")
@@ -473,15 +474,18 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                                f"stick-slip events without a limit cycle: {slips.reason} "
                                f"({kind} process, {src}); method: stick-slip events",
                                **common)
-        return verdict("no-oscillation", quiet[0], quiet[1], **common)
+        return verdict(v, conf, reason, **common)
+
+    if quiet is not None:
+        return slips_or(*quiet)
     if spp < MIN_SAMPLES_PER_PERIOD:
         return verdict("insufficient-data", 0.8,
                        f"only {spp:.1f} samples per oscillation period; the waveform is lost "
                        f"(need at least {MIN_SAMPLES_PER_PERIOD:g})", **common)
     if osc.cycles < min_cycles:
-        return verdict("insufficient-data", 0.7,
-                       f"only {osc.cycles:.1f} cycles of a {osc.period:.4g} s oscillation; "
-                       f"need at least {min_cycles:g}", **common)
+        return slips_or("insufficient-data", 0.7,
+                        f"only {osc.cycles:.1f} cycles of a {osc.period:.4g} s oscillation; "
+                        f"need at least {min_cycles:g}")
     # confidence from the amount and resolution of the data
     c_data = min(1.0, np.sqrt(osc.cycles / 10.0)) * float(np.clip((spp - 5.0) / 15.0, 0.3, 1.0))
     # the shape of the mean cycle: harmonics (a valve nonlinearity at all?)

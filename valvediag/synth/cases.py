@@ -278,7 +278,9 @@ def _try(klass: str, rng: np.random.Generator):
     if "stiction" in klass or "backlash" in klass or klass in ("level-linear-tuning",):
         sim.update(sp_step=1.0, sp_step_time=60.0)
     # measurement noise: in % of the clean record's range, fed back to the controller
-    clean = simulate_loop(**sim, load_profile=profile_load, sp_profile=profile_sp)
+    # (seeded: a ringing loop's load noise must not make the record differ between runs)
+    clean = simulate_loop(**sim, load_profile=profile_load, sp_profile=profile_sp,
+                          seed=int(rng.integers(1 << 31)))
     k0 = int(warm / hc)
     rng_pv = float(np.ptp(clean.pv[k0:]))
     if not rng_pv > 0:
