@@ -31,8 +31,16 @@ def _flow(valve, op, noise=0.05, tau=5.0, seed=0):
     return 2.0 * _lag(valve, tau) + rng.normal(0, noise, op.size)
 
 
+def _wandering_op(n=3000):
+    """A triangular OP whose reversals wander (a slow sine beneath it): a
+    valve's stick band then delays the PV by varying times, which no dead time
+    or lag of a linear valve can copy."""
+    t = np.arange(n) * H
+    return _triangle(n, 300.0, amp=2.0) + 3.0 * np.sin(2 * np.pi * t / 1100.0)
+
+
 def test_parallelogram_of_a_sticky_valve_is_stiction_with_its_size():
-    op = _triangle(3000, 300.0)
+    op = _wandering_op()
     pv = _flow(apply_valve("kano", op, S=3.0, J=1.5), op)
     s = valve_signature(pv, _noisy(op), H, process="self-regulating")
     assert s.verdict == "stiction", s.reason
@@ -40,12 +48,16 @@ def test_parallelogram_of_a_sticky_valve_is_stiction_with_its_size():
     assert s.gain > 0.8 and s.r2_valve > 0.95 and s.stuck_share > 0.05
 
 
-def test_dead_band_without_jump_is_backlash():
-    op = _triangle(3000, 300.0)
+def test_dead_band_without_jump_is_identified_as_a_dead_band():
+    op = _wandering_op()
     pv = _flow(apply_valve("backlash", op, DB=3.0), op)
     s = valve_signature(pv, _noisy(op), H, process="self-regulating")
-    assert s.verdict == "backlash", s.reason
-    assert s.J == 0.0 and s.S == pytest.approx(3.0, rel=0.3)
+    # the band and the absence of a jump are identified ...
+    assert s.J == 0.0 and s.S == pytest.approx(3.0, rel=0.1)
+    assert s.kind_gain < 0 and s.gain > 0.6
+    # ... but a linear valve behind a lag already explains 96 % of this PV, and
+    # the dead band adds under 3 %: not a fault that matters (the limit)
+    assert s.verdict == "linear" and "adds only" in s.reason
 
 
 def test_ellipse_of_a_linear_valve_behind_a_lag_is_linear():
@@ -60,8 +72,9 @@ def test_ellipse_of_a_linear_valve_behind_a_lag_is_linear():
 
 def test_level_slope_of_a_sticky_valve_is_stiction_and_of_a_linear_valve_is_linear():
     # an integrating process (a level): the PV slope is flat while the valve
-    # sticks at each reversal of the OP, then jumps by J
-    op = _triangle(4000, 800.0, amp=6.0)
+    # sticks at each reversal of the OP, then jumps by J; the OP swings little
+    # more than the stick band, as in a limit cycle the valve causes
+    op = _triangle(4000, 800.0, amp=3.0)
     valve = apply_valve("kano", op, S=2.0, J=1.5)
     rng = np.random.default_rng(1)
     pv = np.cumsum(0.05 * (valve - 50.0)) + rng.normal(0, 0.01, op.size)

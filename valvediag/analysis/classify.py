@@ -48,7 +48,7 @@ RAMP_CURVATURE_MAX = 0.011
 RAMP_SHARE_MIN = 0.6
 #: A valve "follows the OP" when a linear valve explains at least this share of
 #: the held-out variance of the valve position the PV implies ...
-FOLLOWS_R2 = 0.95
+FOLLOWS_R2 = 0.9
 #: ... and the best sticky or loose valve removes less than this share of the rest ...
 FOLLOWS_GAIN = 0.35
 #: ... in a record that resolves the valve's motion: at least this many

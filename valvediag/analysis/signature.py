@@ -67,8 +67,14 @@ __all__ = ["ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_e
 SIGNATURE_LIMITS = {
     # held-out error removed by the nonlinear valve: below this, no valve fault
     "gain": 0.6,
-    # the nonlinear valve must explain this share of the held-out variance
+    # the nonlinear valve must explain this share of the held-out variance ...
     "r2": 0.5,
+    # ... and this much more of it than a linear valve does (a valve that a
+    # linear model explains to 99 % is linear for this record, whatever a
+    # band does to the last percent) ...
+    "r2_gain": 0.03,
+    # ... unless it explains the PV down to this multiple of its noise variance
+    "noise_floor": 3.0,
     # the stick band must exceed this multiple of the OP's noise band
     "band_over_noise": 1.0,
     # a slip jump must remove this share of the dead band's held-out error
@@ -119,6 +125,10 @@ class ValveSignature:
         OP noise band not counted as a reversal [OP unit].
     dead_time, lag : float
         Process dead time and first-order lag of the best fit [s].
+    noise_floor : float
+        Held-out mean squared error of the best nonlinear valve over the
+        variance of the PV's (or its slope's) white noise: about 1 when the
+        valve explains everything but the measurement noise [-].
     stuck_share : float
         Share of the samples in which the OP moved by more than its noise band
         from where the fitted valve stuck, while the valve stood still [-].
@@ -152,6 +162,7 @@ class ValveSignature:
     dead_time: float = math.nan
     lag: float = math.nan
     stuck_share: float = math.nan
+    noise_floor: float = math.nan
     samples: int = 0
     window: int = 0
     start: int = 0
@@ -168,7 +179,7 @@ class ValveSignature:
     def as_dict(self) -> dict:
         """The figures as plain floats (NaN where not measured)."""
         keys = ("process", "verdict", "gain", "r2_linear", "r2_valve", "kind_gain", "S", "J",
-                "noise_band", "dead_time", "lag", "stuck_share", "samples", "window")
+                "noise_band", "dead_time", "lag", "stuck_share", "noise_floor", "samples", "window")
         out = {}
         for k in keys:
             v = getattr(self, k)
@@ -214,15 +225,18 @@ def _most_active(op: np.ndarray, m: int) -> int:
     return int(starts[int(np.argmax(ranges))])
 
 
-def _slope_window(pv: np.ndarray, h: float, noise: float) -> int:
+def _slope_window(pv: np.ndarray, h: float, noise: float, period: float = math.nan) -> int:
     """Half-width [samples] of the central difference that reads the PV slope.
 
     The smallest of 2, 4, 8, ... whose noise on the slope is under a quarter
-    of the slope's spread; the valve candidates are averaged over the same
-    window, so a wide window loses no bias, only detail."""
+    of the slope's spread, and no wider than a twentieth of the oscillation
+    period when one is known (the valve's motion within a cycle must stay
+    visible); the valve candidates are averaged over the same window, so a
+    wide window loses no bias, only detail."""
     n = pv.size
     w = 2
-    while 4 * w < n // 8:
+    cap = n // 8 if not math.isfinite(period) else min(n // 8, int(period / (10 * h)))
+    while 4 * w <= cap:
         y = (pv[2 * w:] - pv[:-2 * w]) / (2 * w * h)
         if noise * math.sqrt(2.0) / (2 * w * h) <= 0.25 * float(np.std(y)):
             break
@@ -278,6 +292,38 @@ class _Scorer:
         pred = b[:, None] * Z[:, self.test] + c @ self.P[self.test].T
         sse_test = np.sum((self.y[self.test][None, :] - pred) ** 2, axis=1)
         return sse_train, sse_test, b, c
+
+
+class _Candidates:
+    """Fitted valves, one entry per (valve, dynamics) pair, flattened."""
+
+    def __init__(self, S, J, pairs, V, train, test, b, c):
+        m, k = train.shape
+        rows = np.repeat(np.arange(m), k)
+        self.S, self.J = np.asarray(S, float)[rows], np.asarray(J, float)[rows]
+        self.pair = [pairs[i] for i in np.tile(np.arange(k), m)]
+        self.train, self.test, self.b = train.ravel(), test.ravel(), b.ravel()
+        self.c = c.reshape(m * k, -1)
+        self._V, self._row = V, rows
+
+    @property
+    def valve(self):
+        """The valve position of each entry (a view per entry)."""
+        return [self._V[r] for r in self._row]
+
+    def best(self, mask) -> int:
+        """Index of the lowest training error among ``mask``."""
+        return int(np.argmin(np.where(mask, self.train, np.inf)))
+
+    def join(self, other: "_Candidates") -> "_Candidates":
+        out = object.__new__(_Candidates)
+        out.S, out.J = np.r_[self.S, other.S], np.r_[self.J, other.J]
+        out.pair = self.pair + other.pair
+        out.train, out.test = np.r_[self.train, other.train], np.r_[self.test, other.test]
+        out.b, out.c = np.r_[self.b, other.b], np.vstack([self.c, other.c])
+        out._V = np.vstack([self._V, other._V])
+        out._row = np.r_[self._row, other._row + self._V.shape[0]]
+        return out
 
 
 def valve_signature(pv, op, sample_time: float, *, process: str, period: float = math.nan,
@@ -382,8 +428,9 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
                                      f"band of {band:.3g})", **base)
     # the target and the operator that takes a valve position to it
     if process == "integrating":
-        w = _slope_window(pv, h, pv_noise)
+        w = _slope_window(pv, h, pv_noise, period)
         y = (pv[2 * w:] - pv[:-2 * w]) / (2 * w * h)
+        y_noise = pv_noise * math.sqrt(2.0) / (2 * w * h)
 
         def target(V):
             cs = np.concatenate([np.zeros((V.shape[0], 1)), np.cumsum(V, axis=1)], axis=1)
@@ -391,6 +438,7 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     else:
         w = 0
         y = pv.copy()
+        y_noise = pv_noise
 
         def target(V):
             return V
@@ -415,7 +463,7 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     # 2. nonlinear valves with dynamics no slower than the linear valve's
     # (a dead band adds a delay of its own: the nonlinear valve's dynamics may
     # not delay more, on average, than the linear valve's)
-    budget = d_lin * h + tau_lin + 1e-9
+    budget = 2.0 * (d_lin * h + tau_lin) + 2.0 * h
     pairs = [(d, t) for d in delays for t in lags if d * h + t <= budget]
 
     def fit_valves(SS, JJ, pairs):
@@ -426,47 +474,65 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
 
     # a) a coarse valve grid over every (dead time, lag) within the budget:
     # the best dynamics of a dead band and of a valve with a slip jump
-    Sc = np.geomspace(max(0.1, 0.5 * band), max(0.8 * op_range, 0.2), 7)
+    Sc = np.geomspace(max(0.1, 0.5 * band), max(1.2 * op_range, 0.2), 12)
     Jc = np.r_[0.0 * Sc, 0.5 * Sc, Sc]
     _, tr, _, _, _ = fit_valves(np.r_[Sc, Sc, Sc], Jc, pairs)
     near = set()
     for fam in (Jc == 0, Jc > 0):
-        d0, t0 = pairs[int(np.argmin(tr[fam].min(axis=0)))]
-        near |= {(d0, t) for t in (t0, 0.7 * t0, 1.4 * t0) if d0 * h + t <= budget}
+        # the dynamics of the two best (valve, dynamics) entries of the family
+        best_pairs = np.argsort(np.where(fam[:, None], tr, np.inf), axis=None)[:2] % len(pairs)
+        for ip in best_pairs:
+            d0, t0 = pairs[int(ip)]
+            near |= {(d0, t) for t in (t0, 0.7 * t0, 1.4 * t0) if d0 * h + t <= budget}
     sub = sorted(near)
     # b) the fine valve grid at those dynamics
-    S_grid = np.geomspace(max(0.1, 0.5 * band), max(0.8 * op_range, 0.2), 14)
+    S_grid = np.geomspace(max(0.1, 0.5 * band), max(1.2 * op_range, 0.2), 16)
     SS, JJ = np.meshgrid(S_grid, _JS, indexing="ij")
     SS, JJ = np.r_[0.0, SS.ravel()], np.r_[0.0, (SS * JJ).ravel()]      # row 0: linear
-    V, trn, ten, bn, cn = fit_valves(SS, JJ, sub)
-    m, k = trn.shape
-    trn, ten, bn = trn.ravel(), ten.ravel(), bn.ravel()
-    cn = cn.reshape(m * k, -1)
-    ibest = int(np.argmin(trn))
-    iv, ik = divmod(ibest, k)
-    S, J = float(SS[iv]), float(JJ[iv])
-    gain = 1.0 - ten[ibest] / tel[il] if tel[il] > 0 else 0.0
-    r2_val = 1.0 - ten[ibest] / scorer.var_test
+    cand = _Candidates(SS, JJ, sub, *fit_valves(SS, JJ, sub))
+    # c) a local refinement of the best dead band and the best valve with a slip
+    # jump (the objective is discontinuous in S and J: grid, then refine)
+    ref_s, ref_j, ref_p = [], [], set()
+    for fam in (cand.J == 0, cand.J > 0):
+        i = cand.best(fam & (cand.S > 0))
+        s0, j0, (d0, t0) = cand.S[i], cand.J[i], cand.pair[i]
+        lags0 = {t0 * f for f in (0.5, 0.7, 0.85, 1.0, 1.2, 1.4, 2.0)} | {0.0, h}
+        ref_p |= {(dd, t) for dd in {max(0, d0 - 1), d0, d0 + 1} for t in lags0
+                  if dd * h + t <= budget}
+        for f in (0.88, 0.94, 1.0, 1.06, 1.13):
+            for r in ((0.0,) if j0 == 0 else
+                      sorted({min(1.0, max(0.05, j0 / s0 + dr)) for dr in (-0.1, 0.0, 0.1)})):
+                ref_s.append(f * s0)
+                ref_j.append(r * f * s0)
+    ref_s, ref_j, ref_p = np.array(ref_s), np.array(ref_j), sorted(ref_p)
+    cand = cand.join(_Candidates(ref_s, ref_j, ref_p, *fit_valves(ref_s, ref_j, ref_p)))
+    ibest = cand.best(np.ones(cand.S.size, bool))
+    S, J = float(cand.S[ibest]), float(cand.J[ibest])
+    gain = 1.0 - cand.test[ibest] / tel[il] if tel[il] > 0 else 0.0
+    r2_val = 1.0 - cand.test[ibest] / scorer.var_test
+    # the held-out error against the PV's own noise: 1 when the valve explains
+    # all but the measurement noise
+    floor = (cand.test[ibest] / max(int(scorer.test.sum()), 1) / y_noise ** 2
+             if y_noise > 0 else math.inf)
     # stiction against backlash: the best of each family on the training blocks
-    fam_j = JJ[np.arange(m * k) // k] > 0
-    fam_b = (JJ[np.arange(m * k) // k] == 0) & (SS[np.arange(m * k) // k] > 0)
-    ib = int(np.argmin(np.where(fam_b, trn, np.inf)))
-    ij = int(np.argmin(np.where(fam_j, trn, np.inf)))
-    kind_gain = 1.0 - ten[ij] / ten[ib] if ten[ib] > 0 else 0.0
+    ib = cand.best((cand.J == 0) & (cand.S > 0))
+    ij = cand.best(cand.J > 0)
+    kind_gain = 1.0 - cand.test[ij] / cand.test[ib] if cand.test[ib] > 0 else 0.0
     # what the PV says the valve did, in OP units, for the plot
-    d_b, tau_b = sub[ik]
-    bb = bn[ibest]
-    drift = P @ cn[ibest]
+    d_b, tau_b = cand.pair[ibest]
+    bb = cand.b[ibest]
+    drift = P @ cand.c[ibest]
+    xv = cand.valve[ibest]
     implied_t = (y - drift) / bb if bb != 0 else np.full(N, np.nan)
     # align the implied valve with the OP it answers (undo the dead time)
     sl = slice(w, n - w) if w else slice(0, n)
-    op_v, fit_v = op[sl], V[iv][sl]
+    op_v, fit_v = op[sl], xv[sl]
     if d_b:
         implied_t = np.r_[implied_t[d_b:], np.full(d_b, np.nan)]
-    moved = np.abs(np.diff(V[iv])) < 1e-12
-    drift_op = np.abs(op[1:] - _stick_point(V[iv], op)[1:]) > band
+    moved = np.abs(np.diff(xv)) < 1e-12
+    drift_op = np.abs(op[1:] - _stick_point(xv, op)[1:]) > band
     stuck_share = float(np.mean(moved & drift_op))
-    base.update(window=int(w), gain=float(gain), r2_linear=float(r2_lin), r2_valve=float(r2_val),
+    base.update(noise_floor=float(floor), window=int(w), gain=float(gain), r2_linear=float(r2_lin), r2_valve=float(r2_val),
                 kind_gain=float(kind_gain), S=S, J=J, dead_time=d_b * h, lag=float(tau_b),
                 stuck_share=stuck_share, op=op_v, implied=implied_t, fitted=fit_v)
     lim = SIGNATURE_LIMITS
@@ -475,10 +541,15 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
             verdict="no-response",
             reason=(f"the OP moved over {op_range:.3g} % and the PV did not answer (held-out R2 "
                     f"{r2_lin:.2f} linear, {r2_val:.2f} with a sticky valve)"), **base)
-    if gain < lim["gain"] or r2_val < lim["r2"] or S < lim["band_over_noise"] * band:
+    matters = r2_val - r2_lin >= lim["r2_gain"] or floor <= lim["noise_floor"]
+    if gain < lim["gain"] or r2_val < lim["r2"] or not matters \
+            or S < lim["band_over_noise"] * band:
         why = (f"the valve follows the OP: a sticky or loose valve removes {100 * gain:.0f}% of a "
                f"linear valve's held-out error (R2 {r2_lin:.2f} linear, {r2_val:.2f} nonlinear)")
-        if gain >= lim["gain"] and r2_val >= lim["r2"]:
+        if gain >= lim["gain"] and r2_val >= lim["r2"] and not matters:
+            why = (f"a linear valve explains the PV to R2 {r2_lin:.2f}; a sticky or loose valve "
+                   f"adds only {r2_val - r2_lin:.3f}: no valve nonlinearity that matters")
+        elif gain >= lim["gain"] and r2_val >= lim["r2"]:
             why = (f"the band found ({S:.2g}) is within the OP's noise band ({band:.2g}): no valve "
                    "nonlinearity beyond the noise")
         return ValveSignature(verdict="linear", reason=why, **base)
