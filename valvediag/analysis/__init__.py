@@ -11,6 +11,9 @@ One loop, pure numerics: arrays in, frozen results out.
   (harmonic distortion, ramps), which tells a valve from a sinusoid.
 * :mod:`~valvediag.analysis.bi`: the Backlash Index of Farenzena &
   Trierweiler (2012), literal and robust.
+* :mod:`~valvediag.analysis.signature`: the valve's behaviour read back from
+  the PV (a Hammerstein fit of linear, sticky and loose valves), stick-slip
+  events without a limit cycle, Horch's cross-correlation test.
 * :mod:`~valvediag.analysis.classify`: one verdict for one record.
 """
 from .align import AlignedLoop, align_loop
@@ -18,6 +21,8 @@ from .bi import BacklashIndex, backlash_index
 from .classify import LoopDiagnosis, classify_loop
 from .oscillation import Oscillation, detect_oscillation
 from .quality import DataQuality, quality_metrics
+from .signature import StickSlipEvents, ValveSignature, stick_slip_events, valve_signature
 
 __all__ = ["AlignedLoop", "align_loop", "BacklashIndex", "backlash_index", "LoopDiagnosis",
-           "classify_loop", "Oscillation", "detect_oscillation", "DataQuality", "quality_metrics"]
+           "classify_loop", "Oscillation", "detect_oscillation", "DataQuality", "quality_metrics",
+           "ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_events"]

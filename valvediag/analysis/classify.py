@@ -533,8 +533,14 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return verdict("insufficient-data", 0.6, f"the Backlash Index could not be measured: {bres.reason}",
                        process_screen=pscreen, shape=shape, backlash=bres, **common)
     lo, hi = bres.thresholds
-    sig = valve_signature(x, u, h, process="integrating", period=osc.period)
-    ev["signature"] = sig.as_dict()
+    # the valve signature checks a rounded-apex (backlash) or an undecided
+    # reading: a disturbance or a ringing loop rounds a PV's peaks too. Sharp
+    # turns (stiction) are the paper's own evidence and cost no fit.
+    sig = ValveSignature(process="integrating", verdict="unknown",
+                         reason="not read: the Backlash Index finds sharp turns")
+    if bres.verdict != "stiction":
+        sig = valve_signature(x, u, h, process="integrating", period=osc.period)
+        ev["signature"] = sig.as_dict()
     curved = np.isfinite(sev["ramp_curvature"]) and sev["ramp_curvature"] >= RAMP_CURVATURE_MAX
     if follows_op(sig, osc.period) or (curved and sig.verdict == "linear"):
         why = (f"the valve position implied by the PV slope follows the OP (held-out R2 "

@@ -85,7 +85,7 @@ SIGNATURE_LIMITS = {
     "dead_op_range": 10.0,
 }
 #: Most samples fitted (the most active stretch of a longer record).
-MAX_SAMPLES = 4000
+MAX_SAMPLES = 3000
 #: OP noise multiples that are not a reversal of the actuator.
 NOISE_REVERSAL = 6.0
 _JS = (0.0, 0.25, 0.5, 0.75, 1.0)
@@ -306,10 +306,9 @@ class _Candidates:
         self.c = c.reshape(m * k, -1)
         self._V, self._row = V, rows
 
-    @property
-    def valve(self):
-        """The valve position of each entry (a view per entry)."""
-        return [self._V[r] for r in self._row]
+    def valve(self, i: int) -> np.ndarray:
+        """The valve position of entry ``i`` [OP unit]."""
+        return self._V[self._row[i]]
 
     def best(self, mask) -> int:
         """Index of the lowest training error among ``mask``."""
@@ -464,7 +463,10 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     # (a dead band adds a delay of its own: the nonlinear valve's dynamics may
     # not delay more, on average, than the linear valve's)
     budget = 2.0 * (d_lin * h + tau_lin) + 2.0 * h
-    pairs = [(d, t) for d in delays for t in lags if d * h + t <= budget]
+    # (the coarse stage looks at every other dead time and lag, and the linear
+    # valve's; the refinement below looks between them)
+    pairs = [(d, t) for d in sorted(set(delays[::2]) | {d_lin})
+             for t in sorted(set(lags[::2]) | {tau_lin}) if d * h + t <= budget]
 
     def fit_valves(SS, JJ, pairs):
         V = apply_valve("kano", np.tile(op, (SS.size, 1)), S=SS, J=JJ, noise_band=band)
@@ -522,7 +524,7 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     d_b, tau_b = cand.pair[ibest]
     bb = cand.b[ibest]
     drift = P @ cand.c[ibest]
-    xv = cand.valve[ibest]
+    xv = cand.valve(ibest)
     implied_t = (y - drift) / bb if bb != 0 else np.full(N, np.nan)
     # align the implied valve with the OP it answers (undo the dead time)
     sl = slice(w, n - w) if w else slice(0, n)

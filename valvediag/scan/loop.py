@@ -315,6 +315,49 @@ def valve_fault_size(aligned: AlignedLoop, a: int, b: int, fault: str,
             for k, v in out.items()}
 
 
+def signature_size(evidence: Mapping, fault: str) -> dict:
+    """Size of a valve fault from the valve signature behind the verdict.
+
+    Parameters
+    ----------
+    evidence : mapping
+        The diagnosis' evidence, with ``signature``
+        (:meth:`valvediag.analysis.signature.ValveSignature.as_dict`) or
+        ``stick_slip`` (:meth:`~valvediag.analysis.signature.StickSlipEvents.as_dict`).
+    fault : {'stiction', 'backlash'}
+        The verdict.
+
+    Returns
+    -------
+    dict
+        In the shape of :func:`valve_fault_size`'s result: ``S`` and ``J``
+        (stiction) or ``DB`` (backlash) [OP unit], ``fit_pct`` (held-out R2
+        of the signature [%]), ``confidence`` (at most 0.5: these sizes are
+        not benchmarked) and ``reason``. From stick-slip
+        events alone the OP travel before a slip is a lower bound of the
+        stick band; no size is given then (NaN, confidence 0).
+    """
+    sig = evidence.get("signature") or {}
+    S, J = sig.get("S"), sig.get("J")
+    if sig.get("verdict") not in ("stiction", "backlash", "undecided") or S is None:
+        slips = evidence.get("stick_slip") or {}
+        out = {"S": math.nan, "J": math.nan} if fault == "stiction" else {"DB": math.nan}
+        out.update(confidence=0.0, reason=(
+            f"found by its slips, not sized: the OP crept about {slips.get('op_travel')} % "
+            "before each slip" if slips else "no valve signature to size from"))
+        return out
+    r2, gain = sig.get("r2_valve") or 0.0, sig.get("gain") or 0.0
+    out = {"DB": float(S)} if fault == "backlash" else {"S": float(S), "J": float(J)}
+    # at most 0.5: the sizing benchmark (benchmarks/bench_sizing.py) measures
+    # the loop model's sizes on integrating loops, not these
+    out.update(fit_pct=round(100.0 * r2, 1),
+               confidence=round(float(np.clip(0.5 * r2 * min(1.0, gain), 0.0, 0.5)), 3),
+               model="valve signature: Kano valve, dead time, lag, drifting load",
+               reason="the valve signature's grid fit (held-out blocks); indicative, its "
+                      "sizes are not benchmarked")
+    return out
+
+
 def _sparkline(aligned: AlignedLoop) -> np.ndarray | None:
     """The PV's sparkline (see :attr:`LoopDetail.sparkline`), or None without valid PV."""
     valid = aligned.role_valid.get("pv", np.isfinite(aligned.pv))
@@ -567,7 +610,12 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
               severity_factors=factors, episodes=len(episodes))
     size = None
     if config.size_estimate and verdict in VALVE_FAULTS:
-        size = valve_fault_size(aligned, ra, rb, verdict, ptype, period=rep.period)
+        if ptype == "self-regulating" or "stick_slip" in rep.evidence:
+            # the valve signature is itself a fit of the valve behind the
+            # process: its band and jump are the size (no second, slower fit)
+            size = signature_size(rep.evidence, verdict)
+        else:
+            size = valve_fault_size(aligned, ra, rb, verdict, ptype, period=rep.period)
         ev["size"] = size
     eps = tuple(Episode(start=_utc(aligned, a), end=_utc(aligned, b), period_s=d.period,
                         amplitude=d.amplitude, regularity=d.regularity, verdict=d.verdict,
