@@ -274,3 +274,17 @@ def test_loop_anchor_is_unique_and_url_safe():
     assert anchors[0] == "loop-LIC101" and anchors[3] == "loop-LIC-101"
     assert len(set(anchors)) == len(anchors)
     assert all(re.fullmatch(r"loop-[A-Za-z0-9_.\-]+", a) for a in anchors)
+
+
+@pytest.mark.parametrize("text", ['=HYPERLINK("http://example.com","x")', "+1+2", "-2+3",
+                                  "@SUM(A1)", "\t=1"])
+def test_work_orders_csv_never_holds_a_formula(text, tmp_path):
+    rows = rank_results([loop_result("LIC200", "stiction", 0.8, bi=1.1, period=100.0,
+                                     amplitude=1.0, description=text, reason=text)])
+    path = write_outputs(rows, tmp_path, run_id="run-1", run_info={})["work_orders"]
+    row = read_csv(path)[0]
+    for col in ("description", "reason"):
+        assert row[col] == "'" + text and not row[col].startswith(("=", "+", "-", "@", "\t"))
+    # the JSON list keeps the text as written
+    doc = json.loads((tmp_path / "work_orders.json").read_text(encoding="utf-8"))
+    assert doc["work_orders"][0]["description"] == text

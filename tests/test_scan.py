@@ -489,3 +489,17 @@ def test_valve_faults_carry_a_size_near_the_simulated_one(scanned_plant):
     doc = json.loads(summary.outputs["verdicts"].read_text())
     sized = [e for e in doc["loops"] if e["size"] is not None]
     assert {e["verdict"] for e in sized} <= {"stiction", "backlash"} and sized
+
+
+def test_a_missing_export_path_stops_the_scan_before_anything_is_stored(tmp_path):
+    # an unmounted share beside a good export must not look like a quiet night
+    plant = synth_plant(4, 0.05, 5.0, tmp_path / "plant", seed=3)
+    missing = str(tmp_path / "share" / "exports")
+    db = tmp_path / "s.duckdb"
+    with pytest.raises(FileNotFoundError, match="share/exports: no such file or directory"):
+        run_scan([str(p) for p in plant.exports] + [missing], plant.loops_csv, db,
+                 tmp_path / "out")
+    assert not (tmp_path / "out" / "verdicts.json").exists()
+    if db.exists():
+        with Store(db) as store:
+            assert store.counts()["samples"] == 0

@@ -12,7 +12,8 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 
-__all__ = ["to_plain", "finite_or_none", "one_line", "first_line", "printable", "aware_utc"]
+__all__ = ["to_plain", "finite_or_none", "one_line", "first_line", "printable", "aware_utc",
+           "spreadsheet_safe"]
 
 
 def to_plain(obj):
@@ -172,3 +173,33 @@ def aware_utc(value: dt.datetime | None, what: str) -> dt.datetime | None:
         raise ValueError(f"{what} {value.isoformat()} has no time zone; give an aware datetime "
                          f"(e.g. tzinfo=datetime.timezone.utc)")
     return value.astimezone(dt.timezone.utc)
+
+
+#: First characters that make a spreadsheet read a cell as a formula.
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def spreadsheet_safe(text) -> str:
+    """A CSV cell that a spreadsheet shows as text, never runs as a formula.
+
+    Parameters
+    ----------
+    text : object
+        The cell's value (taken as ``str``).
+
+    Returns
+    -------
+    str
+        The text, with a leading apostrophe when it starts with ``=``, ``+``,
+        ``-``, ``@``, a tab or a carriage return (the OWASP advice against CSV
+        injection). Spreadsheets hide the apostrophe.
+
+    Examples
+    --------
+    >>> spreadsheet_safe('=HYPERLINK("http://x")')
+    '\'=HYPERLINK("http://x")'
+    >>> spreadsheet_safe("Drum level")
+    'Drum level'
+    """
+    text = str(text)
+    return "'" + text if text.startswith(FORMULA_STARTS) else text

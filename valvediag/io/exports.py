@@ -1135,8 +1135,11 @@ def expand_paths(paths_or_globs: str | os.PathLike | Iterable[str | os.PathLike]
         elif glob.has_magic(item):
             hits = sorted(glob.glob(item, recursive=True))
             hits = [h for h in hits if os.path.isfile(h)]
-        else:
+        elif os.path.exists(item):
             hits = [item]
+        else:
+            errors.append(f"{item}: no such file or directory")
+            continue
         if not hits:
             errors.append(f"{item}: no file matches")
         for h in hits:

@@ -47,7 +47,7 @@ from valvediag.report.explain import ACTIONS, size_text
 from valvediag.report.history import PlantHistory, plant_history, read_history
 from valvediag.report.html import REPORTS_DIR, loop_anchor, render_report
 
-from ..plain import to_plain
+from ..plain import spreadsheet_safe, to_plain
 from ..scan.types import LoopResult
 from ..verdicts import ACTION_VERDICTS
 
@@ -170,10 +170,14 @@ def write_work_orders(results: Sequence[LoopResult], path, *, report_name: str =
         w = csv.writer(fh)
         w.writerow(WORK_ORDER_COLUMNS)
         for o in work_orders(results, history, report_name=report_name, run_id=run_id):
-            w.writerow([o["loop"], o["unit"], o["fault"], f"{o['confidence']:.2f}",
-                        f"{o['severity']:.4g}", o["recommended_action"], o["report_link"],
+            # text from loops.csv and the data is escaped: a spreadsheet must
+            # not run a description such as =HYPERLINK(...) as a formula
+            w.writerow([spreadsheet_safe(o["loop"]), spreadsheet_safe(o["unit"]), o["fault"],
+                        f"{o['confidence']:.2f}", f"{o['severity']:.4g}",
+                        o["recommended_action"], spreadsheet_safe(o["report_link"]),
                         o["status"], o["first_reported"], "" if o["rank"] is None else o["rank"],
-                        o["description"], o["reason"], o["size_estimate"]])
+                        spreadsheet_safe(o["description"]), spreadsheet_safe(o["reason"]),
+                        o["size_estimate"]])
     return path
 
 

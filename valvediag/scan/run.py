@@ -70,16 +70,19 @@ def ingest_step(db, exports: Sequence[str], loops: Sequence[LoopSpec], timezone:
     Raises
     ------
     FileNotFoundError
-        No export file matches at all.
+        An export path that does not exist or a pattern that matches no file
+        (every one is named): the scan stops before it stores anything.
 
     Notes
     -----
     Runs left ``running`` belong to scans that died: the caller holds the
     scan lock, so no other scan of the store is alive.
     """
-    files, _ = expand_paths(exports)    # ingest_exports reports patterns matching nothing
-    if not files:
-        raise FileNotFoundError(f"no export file matches {', '.join(exports)}")
+    files, missing = expand_paths(exports)
+    if missing or not files:
+        # an unmounted share or a mistyped path must not look like a quiet night
+        raise FileNotFoundError("; ".join(missing) if missing else
+                                f"no export file matches {', '.join(exports)}")
     if progress is not None:
         progress(0, len(files))
     with Store(db) as store:
