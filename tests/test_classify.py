@@ -143,3 +143,37 @@ def test_accuracy_on_paper_ranges_with_noise(paper_range_cases):
             pv, op, h = record(c, 20, 1.0, rng)
             right += classify_loop(pv, op, sample_time=h, process_type="integrating").verdict == c.truth
         assert right >= 10, (kind, right)
+
+
+@pytest.mark.parametrize("placeholder", [-9999.0, 1e6, 9.9e37])
+def test_one_placeholder_sample_does_not_hide_a_fault(placeholder):
+    pv, op, h = _loop("kano", {"S": 3.0, "J": 1.5})
+    clean = classify_loop(pv, op, sample_time=h, process_type="integrating")
+    bad = pv.copy()
+    bad[bad.size // 2] = placeholder
+    d = classify_loop(bad, op, sample_time=h, process_type="integrating")
+    assert clean.verdict == "stiction"
+    assert d.verdict == "stiction" and d.evidence["spikes_masked"] == 1
+    assert d.bi == pytest.approx(clean.bi, rel=0.05) and d.cycles >= 0.9 * clean.cycles
+
+
+@pytest.mark.parametrize("valve, vp", [("kano", {"S": 3.0, "J": 1.5}), ("backlash", {"DB": 3.0})])
+def test_scattered_bad_samples_do_not_cut_the_record(valve, vp):
+    pv, op, h = _loop(valve, vp)
+    clean = classify_loop(pv, op, sample_time=h, process_type="integrating")
+    bad = pv.copy()
+    bad[np.random.default_rng(1).choice(bad.size, bad.size // 20, replace=False)] = np.nan
+    d = classify_loop(bad, op, sample_time=h, process_type="integrating")
+    assert d.verdict == clean.verdict == ("stiction" if valve == "kano" else "backlash")
+    assert d.evidence["usable_fraction"] > 0.95 and d.cycles >= 0.9 * clean.cycles
+
+
+def test_a_step_is_not_a_spike():
+    from valvediag.analysis.quality import despike
+
+    x = np.r_[np.zeros(50), np.full(50, 10.0)] + np.random.default_rng(0).normal(0, 0.01, 100)
+    y, n = despike(x)
+    assert n == 0 and np.array_equal(x, y)
+    x[30] = -9999.0
+    y, n = despike(x)
+    assert n == 1 and np.isnan(y[30])

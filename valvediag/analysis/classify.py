@@ -30,7 +30,7 @@ import numpy as np
 from .bi import THRESHOLDS, BacklashIndex, backlash_index
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import Oscillation, detect_oscillation
-from .quality import white_noise_std
+from .quality import bridge_short_gaps, despike, white_noise_std
 from .signature import ValveSignature, horch_correlation, stick_slip_events, valve_signature
 
 __all__ = ["classify_loop", "LoopDiagnosis", "integrating_screen"]
@@ -387,10 +387,11 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
 
     Notes
     -----
-    Gaps (NaN in PV or OP) are not bridged: the longest gap-free stretch is
-    analysed. The linear-oscillation test uses the harmonic distortion of the
-    mean PV cycle; a non-sinusoidal external disturbance (a square-wave load)
-    cannot be told from a valve fault this way. A process lag comparable to
+    Isolated gross outliers (placeholders such as -9999 or 9.9e37, spikes)
+    are masked (:func:`~valvediag.analysis.quality.despike`) and runs of up
+    to three missing samples bridged by a straight line
+    (:func:`~valvediag.analysis.quality.bridge_short_gaps`); longer gaps are
+    not bridged: the longest gap-free stretch is analysed. A process lag comparable to
     the period rounds a stiction apex and biases the BI towards backlash.
 
     References
@@ -425,6 +426,14 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return LoopDiagnosis(verdict=v, confidence=round(float(np.clip(conf, 0.05, 0.99)), 2),
                              reason=reason, evidence=ev, **base, **out)
 
+    # placeholders and spikes are masked, and short runs of missing or bad
+    # samples bridged, before the longest gap-free stretch is taken: one
+    # -9999 or a few scattered bad samples must not cut or flatten the record
+    pv, pv_spikes = despike(pv)
+    op, op_spikes = despike(op)
+    pv, pv_bridged = bridge_short_gaps(pv)
+    op, op_bridged = bridge_short_gaps(op)
+    ev.update(spikes_masked=pv_spikes + op_spikes, samples_bridged=pv_bridged + op_bridged)
     good = np.isfinite(pv) & np.isfinite(op)
     a, b = _longest_finite_run(good)
     ev["usable_samples"] = b - a

@@ -39,7 +39,7 @@ import polars as pl
 
 from .align import AlignedLoop, contiguous_segments, to_epoch_us
 
-__all__ = ["DataQuality", "quality_metrics", "white_noise_std", "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
+__all__ = ["DataQuality", "quality_metrics", "white_noise_std", "despike", "bridge_short_gaps", "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
 
 #: Mode texts meaning "the controller is not closing the loop".
 MANUAL_MODES = frozenset({"MAN", "MANUAL", "IMAN", "LO", "OOS", "O/S", "LOCAL", "TRK", "TRACK"})
@@ -427,3 +427,90 @@ def white_noise_std(x) -> float:
     w1 = 1.0 - w2
     r = (v[1:-1] - (w1 * v[:-2] + w2 * v[2:])) / np.sqrt(1.0 + w1 ** 2 + w2 ** 2)
     return float(1.4826 * np.median(np.abs(r - np.median(r))))
+
+
+#: A sample this many robust noise deviations from its 7-sample median, and
+#: at least half the signal's 1-99 % range from it, is a spike.
+SPIKE_SIGMAS = 10.0
+SPIKE_RANGE = 0.5
+#: Longest run of missing samples bridged by a straight line [samples].
+BRIDGE_SAMPLES = 3
+
+
+def despike(x) -> tuple[np.ndarray, int]:
+    """Mask isolated gross outliers: placeholders (-9999, 9.9e37) and spikes.
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+        Uniformly sampled signal, NaN where missing.
+
+    Returns
+    -------
+    y : numpy.ndarray
+        ``x`` with the spikes set to NaN.
+    spikes : int
+        Samples masked.
+
+    Notes
+    -----
+    A sample is a spike when it lies both ``SPIKE_SIGMAS`` robust standard
+    deviations (of the deviations from the 7-sample running median) and
+    ``SPIKE_RANGE`` of the record's 1-99 % range away from the running
+    median of its neighbours (a Hampel filter with a gross-error floor). A
+    step of the signal (a valve's slip, a set-point move) moves the median
+    with it and is not a spike; a run of more than three outliers in seven
+    samples is not caught (it is a bad state, not a spike).
+    """
+    from scipy.ndimage import median_filter
+
+    y = np.asarray(x, dtype=float).copy()
+    ok = np.isfinite(y)
+    if ok.sum() < 8:
+        return y, 0
+    filled = np.where(ok, y, np.interp(np.arange(y.size), np.flatnonzero(ok), y[ok]))
+    med = median_filter(filled, size=7, mode="nearest")
+    dev = np.abs(filled - med)
+    sigma = 1.4826 * float(np.median(dev[ok]))
+    lo, hi = np.percentile(filled[ok], [1, 99])
+    spike = ok & (dev > SPIKE_SIGMAS * sigma) & (dev > SPIKE_RANGE * (hi - lo))
+    y[spike] = np.nan
+    return y, int(spike.sum())
+
+
+def bridge_short_gaps(x, max_len: int = BRIDGE_SAMPLES) -> tuple[np.ndarray, int]:
+    """Join the two ends of each short run of missing samples by a straight line.
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+        Uniformly sampled signal, NaN where missing.
+    max_len : int
+        Longest run bridged [samples]; longer runs stay missing.
+
+    Returns
+    -------
+    y : numpy.ndarray
+    bridged : int
+        Samples filled.
+
+    Notes
+    -----
+    Only runs with a finite sample on both sides are bridged, so a record is
+    never extended at its ends. Keep ``max_len`` short against the
+    oscillation period: a straight line through a valve's slip would turn
+    a jump into a ramp.
+    """
+    y = np.asarray(x, dtype=float).copy()
+    bad = ~np.isfinite(y)
+    if not bad.any() or bad.all():
+        return y, 0
+    d = np.diff(np.r_[0, bad.astype(np.int8), 0])
+    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    short = (stops - starts <= max_len) & (starts > 0) & (stops < y.size)
+    fill = np.zeros(y.size, bool)
+    for a, b in zip(starts[short], stops[short]):
+        fill[a:b] = True
+    good = ~bad
+    y[fill] = np.interp(np.flatnonzero(fill), np.flatnonzero(good), y[good])
+    return y, int(fill.sum())

@@ -603,9 +603,13 @@ def _read_csv_lines(path: str) -> tuple[pl.DataFrame, list[str]]:
 
 
 def _sniff_separator(header: str) -> str:
+    """The most frequent of ``,``, ``;`` and tab in the header; on a tie the one
+    that comes first (it ends the first column name: a tag may be called ``;``)."""
     counts = {sep: header.count(sep) for sep in (",", ";", "\t")}
-    best = max(counts, key=counts.get)
-    return best if counts[best] else ","
+    top = max(counts.values())
+    if not top:
+        return ","
+    return min((sep for sep, c in counts.items() if c == top), key=header.index)
 
 
 def _csv_problem(exc: csv.Error) -> str:
