@@ -1,4 +1,4 @@
-"""Valve signature: hand-built valve traces (parallelogram, staircase, ellipse) and disturbances."""
+"""Valve signature: hand-built valve traces (parallelogram, ellipse, slips) and disturbances."""
 import numpy as np
 import pytest
 from scipy.signal import lfilter

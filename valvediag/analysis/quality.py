@@ -39,7 +39,8 @@ import polars as pl
 
 from .align import AlignedLoop, contiguous_segments, to_epoch_us
 
-__all__ = ["DataQuality", "quality_metrics", "white_noise_std", "despike", "bridge_short_gaps", "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
+__all__ = ["DataQuality", "quality_metrics", "white_noise_std", "despike", "bridge_short_gaps",
+           "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
 
 #: Mode texts meaning "the controller is not closing the loop".
 MANUAL_MODES = frozenset({"MAN", "MANUAL", "IMAN", "LO", "OOS", "O/S", "LOCAL", "TRK", "TRACK"})

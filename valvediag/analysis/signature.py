@@ -179,7 +179,8 @@ class ValveSignature:
     def as_dict(self) -> dict:
         """The figures as plain floats (NaN where not measured)."""
         keys = ("process", "verdict", "gain", "r2_linear", "r2_valve", "kind_gain", "S", "J",
-                "noise_band", "dead_time", "lag", "stuck_share", "noise_floor", "samples", "window")
+                "noise_band", "dead_time", "lag", "stuck_share", "noise_floor", "samples",
+                "window")
         out = {}
         for k in keys:
             v = getattr(self, k)
@@ -534,7 +535,8 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     moved = np.abs(np.diff(xv)) < 1e-12
     drift_op = np.abs(op[1:] - _stick_point(xv, op)[1:]) > band
     stuck_share = float(np.mean(moved & drift_op))
-    base.update(noise_floor=float(floor), window=int(w), gain=float(gain), r2_linear=float(r2_lin), r2_valve=float(r2_val),
+    base.update(noise_floor=float(floor), window=int(w), gain=float(gain),
+                r2_linear=float(r2_lin), r2_valve=float(r2_val),
                 kind_gain=float(kind_gain), S=S, J=J, dead_time=d_b * h, lag=float(tau_b),
                 stuck_share=stuck_share, op=op_v, implied=implied_t, fitted=fit_v)
     lim = SIGNATURE_LIMITS
@@ -552,8 +554,8 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
             why = (f"a linear valve explains the PV to R2 {r2_lin:.2f}; a sticky or loose valve "
                    f"adds only {r2_val - r2_lin:.3f}: no valve nonlinearity that matters")
         elif gain >= lim["gain"] and r2_val >= lim["r2"]:
-            why = (f"the band found ({S:.2g}) is within the OP's noise band ({band:.2g}): no valve "
-                   "nonlinearity beyond the noise")
+            why = (f"the band found ({S:.2g}) is within the OP's noise band ({band:.2g}): "
+                   "no valve nonlinearity beyond the noise")
         return ValveSignature(verdict="linear", reason=why, **base)
     fig = (f"a {'sticky' if J > 0 else 'loose'} valve explains the PV (removes {100 * gain:.0f}% "
            f"of a linear valve's held-out error; S {S:.2g}, J {J:.2g}, R2 {r2_val:.2f})")
