@@ -288,3 +288,25 @@ def test_work_orders_csv_never_holds_a_formula(text, tmp_path):
     # the JSON list keeps the text as written
     doc = json.loads((tmp_path / "work_orders.json").read_text(encoding="utf-8"))
     assert doc["work_orders"][0]["description"] == text
+
+
+def test_a_store_with_the_retired_not_integrating_verdict_still_reads(tmp_path):
+    # a store written by an earlier version: a self-regulating loop got
+    # 'not-integrating', which scans no longer give
+    path = tmp_path / "old.duckdb"
+    with Store(path) as st:
+        _store_run(st, "old", T0, [("FIC1", "stiction"), ("FIC2", "no-oscillation")])
+        st.con.execute("UPDATE verdicts SET verdict = 'not-integrating' "
+                       "WHERE run_id = 'old' AND loop = 'FIC1'")
+        st.start_run(run_id="now")
+    now = rank_results([loop_result("FIC1", "stiction", 0.9),
+                        loop_result("FIC2", "no-oscillation")])
+    paths = write_outputs(now, tmp_path / "out", run_id="now", run_info={"db": str(path)})
+    (row,) = read_csv(paths["work_orders"])
+    # the old verdict was no valve fault: the sticky valve is news
+    assert row["loop"] == "FIC1" and row["status"] == "new"
+    # and its history holds the old verdict
+    with Store(path) as st:
+        earlier = st.history_before("now")
+    h = plant_history(now, run_id="now", earlier=earlier)
+    assert [p.verdict for p in h.of("FIC1").points] == ["not-integrating", "stiction"]
