@@ -603,13 +603,30 @@ def _read_csv_lines(path: str) -> tuple[pl.DataFrame, list[str]]:
 
 
 def _sniff_separator(header: str) -> str:
-    """The most frequent of ``,``, ``;`` and tab in the header; on a tie the one
-    that comes first (it ends the first column name: a tag may be called ``;``)."""
+    """The most frequent of ``,``, ``;`` and tab in the header. On a tie (a tag
+    may hold a ``;``) the first, in that order, whose split finds the time
+    stamp column, else one whose split has no empty name."""
     counts = {sep: header.count(sep) for sep in (",", ";", "\t")}
     top = max(counts.values())
     if not top:
         return ","
-    return min((sep for sep, c in counts.items() if c == top), key=header.index)
+    tied = [sep for sep, c in counts.items() if c == top]
+    if len(tied) == 1:
+        return tied[0]
+    split = {}
+    for sep in tied:
+        try:
+            split[sep] = [n.strip(" ").lower()
+                          for n in next(csv.reader([header], delimiter=sep))]
+        except csv.Error:
+            continue
+    # a split that finds the time stamp column, then one without empty names
+    for good in (lambda names: any(n in _TIME_NAMES for n in names),
+                 lambda names: all(names)):
+        for sep, names in split.items():
+            if good(names):
+                return sep
+    return tied[0]
 
 
 def _csv_problem(exc: csv.Error) -> str:
