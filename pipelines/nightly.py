@@ -247,10 +247,13 @@ def artifacts(ranked: list[LoopResult], paths: dict[str, str], run_id: str,
 
 @task(name="finish-run", retries=2, retry_delay_seconds=5, retry_condition_fn=_transient,
       cache_policy=NO_CACHE)
-def finish(db: str, run_id: str) -> None:
-    """Mark the run ``complete`` in the store."""
-    finish_run(db, run_id)
-    get_run_logger().info("run %s complete", run_id)
+def finish(db: str, run_id: str, status: str = "complete", note: str | None = None) -> None:
+    """Mark the run ``complete`` or ``partial`` in the store."""
+    finish_run(db, run_id, status, note)
+    if status == "complete":
+        get_run_logger().info("run %s complete", run_id)
+    else:
+        get_run_logger().warning("run %s %s: %s", run_id, status, note)
 
 
 class FlowSteps(ScanSteps):

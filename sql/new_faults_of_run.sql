@@ -1,5 +1,5 @@
 -- Loops whose verdict in run $run_id is a fault (one of $faults, valvediag.verdicts.FAULT_VERDICTS) and was not a fault in the latest complete
--- run before it (a loop absent from that run, or no earlier complete run, counts as new).
+-- (or partial) run before it (a loop absent from that run, or no earlier such run, counts as new).
 -- Works while $run_id is still running, so the nightly flow can report it before closing.
 WITH this_run AS (
     SELECT started_at FROM runs WHERE run_id = $run_id
@@ -7,7 +7,7 @@ WITH this_run AS (
 previous_run AS (
     SELECT r.run_id
     FROM runs AS r, this_run AS t
-    WHERE r.status = 'complete' AND r.run_id <> $run_id AND r.started_at <= t.started_at
+    WHERE r.status IN ('complete', 'partial') AND r.run_id <> $run_id AND r.started_at <= t.started_at
     ORDER BY r.started_at DESC, r.run_id DESC
     LIMIT 1
 ),

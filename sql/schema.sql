@@ -66,15 +66,19 @@ CREATE TABLE IF NOT EXISTS loops (
     issues        VARCHAR[]
 );
 
--- One row per scan. Only status 'complete' counts as history. 'aborted': the scan's process
--- died (found by the next scan, which holds the store's scan lock; see valvediag.scanlock).
--- owner is pid@host of the scan's process, note says why a run failed or was aborted.
--- (A store made before owner/note existed is migrated on open: sql/runs_migrate.sql.)
+-- One row per scan. Runs 'complete' or 'partial' (every step ran, but some export could not
+-- be read or stored nothing: note names them) count as history. 'aborted': the scan's
+-- process died (found by the next scan, which holds the store's scan lock; see
+-- valvediag.store.lock). owner is pid@host of the scan's process, note says why a run is
+-- partial, failed or was aborted.
+-- (A store made before owner/note or 'partial' existed is migrated on open:
+-- sql/runs_migrate.sql.)
 CREATE TABLE IF NOT EXISTS runs (
     run_id        VARCHAR PRIMARY KEY,
     started_at    TIMESTAMPTZ NOT NULL,
     finished_at   TIMESTAMPTZ,
-    status        VARCHAR NOT NULL CHECK (status IN ('running', 'complete', 'failed', 'aborted')),
+    status        VARCHAR NOT NULL CHECK (status IN ('running', 'complete', 'partial', 'failed',
+                                                     'aborted')),
     window_start  TIMESTAMPTZ,
     window_end    TIMESTAMPTZ,
     exports       VARCHAR,

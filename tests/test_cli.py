@@ -59,6 +59,16 @@ def test_bi_json(loop_files, capsys):
     assert "missing column" in rows[2]["reason"] and rows[2]["bi"] is None
 
 
+def test_bi_exits_2_when_no_file_could_be_read(loop_files, tmp_path, capsys):
+    other = tmp_path / "empty.csv"
+    other.write_text("")
+    assert main(["bi", str(loop_files["broken"]), str(other)]) == 2
+    out = capsys.readouterr().out
+    assert out.count("insufficient-data") == 2 and "missing column" in out
+    assert main(["bi", "--json", str(loop_files["broken"])]) == 2
+    assert json.loads(capsys.readouterr().out)[0]["verdict"] == "insufficient-data"
+
+
 def test_bi_table_and_paper_method(loop_files, capsys):
     assert main(["bi", "--method", "paper", str(loop_files["sticky"])]) == 0
     out = capsys.readouterr().out

@@ -296,3 +296,27 @@ def test_stale_running_run_is_aborted_and_old_store_migrated(tmp_path):
     assert aborted == [{"run_id": "r2", "owner": None}]
     assert runs["status"].to_list() == ["complete", "aborted"]
     assert runs["finished_at"][1] is not None
+
+
+def test_store_made_before_partial_runs_is_migrated_and_keeps_owner_and_note(tmp_path):
+    import duckdb
+
+    db = tmp_path / "before_partial.duckdb"
+    con = duckdb.connect(str(db))     # owner/note and 'aborted', but no 'partial' status
+    con.execute("CREATE TABLE runs (run_id VARCHAR PRIMARY KEY, started_at TIMESTAMPTZ NOT "
+                "NULL, finished_at TIMESTAMPTZ, status VARCHAR NOT NULL CHECK (status IN "
+                "('running', 'complete', 'failed', 'aborted')), window_start TIMESTAMPTZ, "
+                "window_end TIMESTAMPTZ, exports VARCHAR, params JSON, owner VARCHAR, "
+                "note VARCHAR)")
+    con.execute("INSERT INTO runs VALUES ('r1', now(), now(), 'failed', NULL, NULL, NULL, "
+                "NULL, '12@host', 'disk full'), ('r2', now(), NULL, 'running', NULL, NULL, "
+                "NULL, NULL, '13@host', NULL)")
+    con.close()
+    with Store(db) as store:
+        store.finish_run("r2", "partial", note="x.csv: unreadable")
+        runs = store.runs()
+    assert runs["status"].to_list() == ["failed", "partial"]
+    assert runs["owner"].to_list() == ["12@host", "13@host"]
+    assert runs["note"].to_list() == ["disk full", "x.csv: unreadable"]
+    with Store(db) as store, pytest.raises(ValueError, match="run status must be one of"):
+        store.finish_run("r2", "half-done")

@@ -205,6 +205,25 @@ def test_scan_summary_names_the_outputs(prefect_api, plant, tmp_path, capsys, mo
 
 
 @pytest.mark.system
+def test_scan_with_an_unreadable_export_is_partial_and_exits_3(prefect_api, plant, tmp_path,
+                                                               capsys, monkeypatch):
+    bad = tmp_path / "garbled.csv"
+    bad.write_text("foo,bar\n1,2\n")
+    db = tmp_path / "p.duckdb"
+    rc, out, err = _cli(["--exports", plant / "exports", bad, "--loops", plant / "loops.csv",
+                         "--db", db, "--out", tmp_path / "out"], capsys, monkeypatch)
+    assert rc == 3, err
+    assert f"{N_LOOPS} loops" in out                      # the loops were still analysed
+    line = [x for x in err.splitlines() if " is partial: " in x]
+    assert len(line) == 1 and str(bad) in line[0]
+    with Store(db, read_only=True) as s:
+        run = s.runs().row(0, named=True)
+    assert run["status"] == "partial" and str(bad) in run["note"]
+    report = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
+    assert "This run is partial." in report and str(bad) in report
+
+
+@pytest.mark.system
 def test_scan_failed_flow_is_one_line_error(prefect_api, plant, tmp_path, capsys, monkeypatch):
     import valvediag.pipelines.nightly
 

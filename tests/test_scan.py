@@ -408,7 +408,11 @@ def test_bad_input_and_history_through_run_scan(small_plant):
         runs = s.runs()
         kept = next(lp for lp in tv if lp not in held_out)
         history = s.verdict_history(kept)
-    assert runs["status"].to_list() == ["complete", "complete"]
+    # an export that could not be read makes each run partial, naming it; a partial
+    # run's verdicts still count as history
+    assert runs["status"].to_list() == ["partial", "partial"]
+    assert s1.status == s2.status == "partial" and str(bad) in s2.status_note
+    assert all(str(bad) in n for n in runs["note"].to_list())
     assert runs["run_id"].to_list() == [s1.run_id, s2.run_id]
     assert history.height == 2 and history["run_id"].to_list() == [s1.run_id, s2.run_id]
     # the held-out fault loops are new in run 2; nothing else changed
@@ -503,3 +507,55 @@ def test_a_missing_export_path_stops_the_scan_before_anything_is_stored(tmp_path
     if db.exists():
         with Store(db) as store:
             assert store.counts()["samples"] == 0
+
+
+# ------------------------------------------------------------ honest run status
+
+@pytest.mark.system
+def test_a_night_that_stored_nothing_or_could_not_write_fails_and_keeps_the_last_outputs(
+        tmp_path, monkeypatch):
+    from valvediag.report import outputs as outputs_module
+    from valvediag.scan.run import NothingStoredError
+
+    plant = synth_plant(4, 0.05, 5.0, tmp_path / "plant", seed=3)
+    db, out = tmp_path / "s.duckdb", tmp_path / "out"
+    first = run_scan(plant.exports, plant.loops_csv, db, out)
+    assert first.status == "complete" and first.status_note == ""
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert set(before) == {"verdicts.json", "work_orders.csv", "work_orders.json", "report.html"}
+
+    # every export unreadable: nothing reached the store, so the run fails, naming the file
+    bad = tmp_path / "bad" / "garbled.csv"
+    bad.parent.mkdir()
+    bad.write_text("foo,bar\n1,2\n")
+    with pytest.raises(NothingStoredError, match="no export reached the store: .*garbled.csv"):
+        run_scan([bad], plant.loops_csv, db, out)
+
+    # the outputs cannot be written (the disk fills up at the report): the run fails and
+    # the previous run's four files stay, as a set, with no staging directory left
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(outputs_module, "write_report_html", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        run_scan(plant.exports, plant.loops_csv, db, out)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    with Store(db, read_only=True) as s:
+        runs = s.runs()
+    assert runs["status"].to_list() == ["complete", "failed", "failed"]
+    notes = runs["note"].to_list()
+    assert str(bad) in notes[1] and "\n" not in notes[1]
+    assert "No space left on device" in notes[2]
+
+
+def test_an_output_directory_that_cannot_be_written_stops_the_scan_before_the_ingest(
+        tmp_path):
+    plant = synth_plant(2, 0.03, 5.0, tmp_path / "plant", seed=4)
+    blocker = tmp_path / "not_a_dir"
+    blocker.write_text("a file where the output directory should go")
+    db = tmp_path / "s.duckdb"
+    with pytest.raises(OSError, match="not_a_dir/out: cannot write the outputs here"):
+        run_scan(plant.exports, plant.loops_csv, db, blocker / "out")
+    if db.exists():
+        with Store(db, read_only=True) as s:
+            assert s.counts()["samples"] == 0 and s.runs().height == 0

@@ -14,6 +14,9 @@ checks that it is regular and caused by a valve nonlinearity, and computes the
 Backlash Index (BI): stiction (sharp peaks), backlash (rounded peaks after
 straight ramps) or undecided. A file that cannot be analysed gets the verdict
 insufficient-data with the reason and does not stop the others.
+
+exit codes: 0 when at least one file was read, 2 when none could be (each
+file's reason is printed).
 """
 
 
@@ -40,28 +43,36 @@ def register(sub):
 def classify_file(path, *, method="robust", process_type="integrating", min_cycles=3.0,
                   columns=None) -> dict:
     """Verdict for one file as the JSON object of ``valvediag bi --json``."""
+    return _classify(path, method, process_type, min_cycles, columns)[0]
+
+
+def _classify(path, method, process_type, min_cycles, columns) -> tuple[dict, bool]:
+    """:func:`classify_file`'s row, and whether the file could be read."""
     try:
         rec, meta = read_loop_csv(path, columns=columns)
     except LoopFileError as exc:
         return {"file": str(path), "verdict": "insufficient-data", "bi": None, "cycles": 0,
-                "period_s": None, "confidence": None, "reason": str(exc)}
+                "period_s": None, "confidence": None, "reason": str(exc)}, False
     d = classify_loop(rec.pv, rec.op, rec.sp, sample_time=rec.sample_time,
                       process_type=process_type, method=method, min_cycles=min_cycles)
     reason = d.reason
     if meta["non_numeric"]:
         reason += "; non-numeric values ignored: " + ", ".join(f"{k} {v}" for k, v in meta["non_numeric"].items())
     return {"file": str(path), "verdict": d.verdict, "bi": finite_or_none(d.bi, 3), "cycles": finite_or_none(d.cycles, 1),
-            "period_s": finite_or_none(d.period, 4), "confidence": finite_or_none(d.confidence, 2), "reason": reason}
+            "period_s": finite_or_none(d.period, 4), "confidence": finite_or_none(d.confidence, 2), "reason": reason}, True
 
 
 def run(args) -> int:
     columns = {r: getattr(args, f"{r}_column") for r in ("timestamp", "pv", "op", "sp")
                if getattr(args, f"{r}_column")}
-    rows = [classify_file(f, method=args.method, process_type=args.process_type,
-                          min_cycles=args.min_cycles, columns=columns or None) for f in args.files]
+    done = [_classify(f, args.method, args.process_type, args.min_cycles, columns or None)
+            for f in args.files]
+    rows = [row for row, _ in done]
+    # every file unreadable: nothing was analysed, which must not exit 0
+    status = 0 if any(read for _, read in done) else 2
     if args.json:
         print(json.dumps(rows, indent=2))
-        return 0
+        return status
     w = max(len(r["file"]) for r in rows)
     print(f"{'file':{w}s}  {'verdict':18s} {'BI':>6s} {'cycles':>6s} {'period [s]':>10s} {'conf':>5s}")
     for r in rows:
@@ -70,4 +81,4 @@ def run(args) -> int:
               f"{fmt(r['cycles'], '6.1f'):>6s} {fmt(r['period_s'], '10.4g'):>10s} "
               f"{fmt(r['confidence'], '5.2f'):>5s}")
         print(f"{'':{w}s}  {r['reason']}")
-    return 0
+    return status

@@ -19,6 +19,9 @@ from pathlib import Path
 from ..plain import one_line
 from . import CommandError
 
+#: Exit code of a scan that ran but left some export out of the store (run ``partial``).
+EXIT_PARTIAL = 3
+
 HELP = """\
 Scan every control loop of a plant: ingest the historian exports into the
 DuckDB store, classify each loop of loops.csv over its latest WINDOW hours
@@ -39,6 +42,15 @@ examples:
   valvediag scan --exports exports/ --loops loops.csv --db plant.duckdb --out out/ --json
   valvediag scan ... --workers 2                        # local Dask cluster, 2 processes
   valvediag scan ... --dask-address tcp://10.0.0.5:8786 --partitions /shared/parts
+
+exit codes:
+  0  the run is complete: every export was stored and every loop analysed
+  2  nothing was analysed: bad arguments, another scan holds the store, a
+     directory that cannot be written, no export reached the store, or a
+     failed step (the run is stored as failed, with the reason); the
+     outputs of the previous run are left as they were
+  3  the run is partial: the outputs are written, but some export could not
+     be read or all its rows were quarantined (each is named)
 """
 
 
@@ -215,6 +227,10 @@ def run(args) -> int:
         _print_summary(summary)
     for line in summary["ingest"]["errors"] + summary["registry_problems"]:
         print(f"valvediag scan: warning: {line}", file=sys.stderr)
+    if summary["status"] != "complete":
+        print(f"valvediag scan: the run {summary['run_id']} is {summary['status']}: "
+              f"{summary['status_note']}", file=sys.stderr)
+        return EXIT_PARTIAL
     return 0
 
 

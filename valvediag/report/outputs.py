@@ -36,10 +36,14 @@ from its earlier complete runs; without one every problem is ``new``.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import datetime as dt
 import json
 import math
+import shutil
+import tempfile
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -55,6 +59,10 @@ __all__ = ["write_outputs", "write_verdicts_json", "write_work_orders", "write_w
            "write_report_html", "work_orders", "render_report", "loop_anchor",
            "RECOMMENDED_ACTIONS", "WORK_ORDER_COLUMNS", "VERDICT_KEYS", "REPORTS_DIR"]
 
+#: Staging directories of :func:`write_outputs` (inside the output directory)
+#: and the age past which one is a killed scan's leftover [s].
+STAGING_PREFIX = ".valvediag-staging-"
+STAGING_STALE_S = 6 * 3600.0
 #: What to do about each verdict that needs action.
 RECOMMENDED_ACTIONS = ACTIONS
 #: Columns of ``work_orders.csv``, in order.
@@ -267,7 +275,10 @@ def write_outputs(results: Sequence[LoopResult], out_dir, *, run_id: str,
         Ranked results (:func:`valvediag.scan.rank_results`).
     out_dir : str or path-like
         Directory, created when missing; existing files of these names are
-        replaced.
+        replaced, as a set: the four are written into a staging directory
+        inside ``out_dir`` and moved in once all are complete, so a failure
+        (a full disk, an error in a figure) leaves the previous run's files
+        as they were.
     run_id : str
         The run.
     run_info : mapping, optional
@@ -299,12 +310,31 @@ def write_outputs(results: Sequence[LoopResult], out_dir, *, run_id: str,
                                max_runs=history_runs)
     else:
         history = plant_history(results, run_id=run_id, started_at=_started(info))
-    return {
-        "verdicts": write_verdicts_json(results, out / "verdicts.json", run_id=run_id),
-        "work_orders": write_work_orders(results, out / "work_orders.csv", history=history,
-                                         run_id=run_id),
-        "work_orders_json": write_work_orders_json(results, out / "work_orders.json",
-                                                   run_id=run_id, history=history),
-        "report": write_report_html(results, out / "report.html", run_id=run_id,
-                                    run_info=info, history=history, workers=workers),
-    }
+    _remove_stale_staging(out)
+    staging = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=out))
+    try:
+        written = {
+            "verdicts": write_verdicts_json(results, staging / "verdicts.json", run_id=run_id),
+            "work_orders": write_work_orders(results, staging / "work_orders.csv",
+                                             history=history, run_id=run_id),
+            "work_orders_json": write_work_orders_json(results, staging / "work_orders.json",
+                                                       run_id=run_id, history=history),
+            "report": write_report_html(results, staging / "report.html", run_id=run_id,
+                                        run_info=info, history=history, workers=workers),
+        }
+        # every file is complete before the first is swapped in: a failure above
+        # leaves the previous run's outputs as they were, as a set
+        for key, path in written.items():
+            written[key] = path.replace(out / path.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return written
+
+
+def _remove_stale_staging(out: Path, age_s: float = STAGING_STALE_S) -> None:
+    """Delete staging directories that a killed scan left in ``out``."""
+    now = time.time()
+    for d in out.glob(STAGING_PREFIX + "*"):
+        with contextlib.suppress(OSError):
+            if d.is_dir() and now - d.stat().st_mtime > age_s:
+                shutil.rmtree(d, ignore_errors=True)

@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import datetime as dt
 import os
+import tempfile
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from ..io.exports import expand_paths
 from ..io.registry import LoopSpec, read_loops_csv
@@ -33,9 +35,74 @@ from .plant import persist_results, rank_results
 from .types import LoopJob, LoopResult, ScanConfig, ScanSummary
 
 __all__ = ["ScanSteps", "execute_scan", "run_scan", "ingest_step", "plan_run", "persist_run",
-           "finish_run", "fail_run", "discard_partitions", "run_info"]
+           "finish_run", "fail_run", "discard_partitions", "run_info", "run_status",
+           "check_writable", "NothingStoredError"]
 
 _UTC = dt.timezone.utc
+#: Bytes written and removed by :func:`check_writable`: a full disk shows
+#: before the work, not after it.
+WRITE_PROBE_BYTES = 1 << 20
+#: Longest note kept with a run [characters].
+NOTE_MAX = 500
+
+
+class NothingStoredError(RuntimeError):
+    """No export of the run reached the store (each failed or was quarantined)."""
+
+
+def check_writable(directory, what: str) -> None:
+    """Check that ``directory`` exists (it is created) and takes a file of
+    :data:`WRITE_PROBE_BYTES`, before a scan does any work.
+
+    Parameters
+    ----------
+    directory : str or path-like
+    what : str
+        What the directory holds, for the message (``'the store'``).
+
+    Raises
+    ------
+    OSError
+        One line naming the directory and the cause (not a directory, no
+        permission, read-only file system, disk full).
+
+    Notes
+    -----
+    A disk with less than the probe free fails here; one that fills up later
+    still fails the step that writes, and the run is then ``failed``.
+    """
+    path = Path(directory)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path, prefix=".valvediag-probe-") as fh:
+            fh.write(b"\0" * WRITE_PROBE_BYTES)
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as exc:
+        raise type(exc)(f"{path}: cannot write {what} here: "
+                        f"{exc.strerror or one_line(exc)}") from None
+
+
+def run_status(ingest: IngestReport) -> tuple[str, str | None]:
+    """How a run whose steps all succeeded ends, given its ingest.
+
+    Parameters
+    ----------
+    ingest : IngestReport
+
+    Returns
+    -------
+    status : {'complete', 'partial'}
+        ``partial`` when an export failed or stored nothing although it had
+        rows (:attr:`IngestReport.incomplete`).
+    note : str or None
+        The exports concerned, one line (at most :data:`NOTE_MAX` characters).
+    """
+    missing = ingest.incomplete
+    if not missing:
+        return "complete", None
+    note = f"{len(missing)} export(s) not stored: " + "; ".join(missing)
+    return "partial", note if len(note) <= NOTE_MAX else note[:NOTE_MAX - 1] + "\u2026"
 
 
 # ------------------------------------------------------------------------------ steps
@@ -146,16 +213,20 @@ def persist_run(db, run_id: str, ranked: Sequence[LoopResult]) -> list[str]:
         return store.new_faults(run_id)["loop"].to_list()
 
 
-def finish_run(db, run_id: str) -> None:
-    """Mark the run ``complete``: every step succeeded.
+def finish_run(db, run_id: str, status: str = "complete", note: str | None = None) -> None:
+    """Mark the run ``complete`` (every step succeeded) or ``partial`` (and some
+    export was not stored, see :func:`run_status`).
 
     Parameters
     ----------
     db : str or path-like
     run_id : str
+    status : {'complete', 'partial'}
+    note : str, optional
+        What is missing from a partial run.
     """
     with Store(db) as store:
-        store.finish_run(run_id, "complete")
+        store.finish_run(run_id, status, note=note)
 
 
 def fail_run(db, run_id: str, exc: BaseException) -> None:
@@ -168,7 +239,7 @@ def fail_run(db, run_id: str, exc: BaseException) -> None:
     exc : BaseException
         The failure.
     """
-    note = one_line(exc)[:500]
+    note = one_line(exc)[:NOTE_MAX]
     with Store(db) as store:
         store.finish_run(run_id, "failed", note=note)
 
@@ -210,7 +281,7 @@ def run_info(db, loops_csv, exports: Sequence[str], jobs: Sequence[LoopJob],
             "window_start": min((j.start for j in jobs), default=None),
             "window_end": max((j.end for j in jobs), default=None),
             "config": config.to_json(), "registry_problems": list(registry_problems),
-            "ingest_errors": list(ingest.errors), "new_faults": list(new_faults),
+            "ingest_errors": list(ingest.incomplete), "new_faults": list(new_faults),
             "generated": dt.datetime.now(_UTC)}
 
 
@@ -295,30 +366,41 @@ def execute_scan(exports, loops_csv, db, out_dir, config: ScanConfig = ScanConfi
     -----
     The scan lock is taken here, once, for the whole run (a process that
     already holds it, such as ``valvediag scan`` around the flow, shares
-    it). The run is ``complete`` only when every step after the plan
-    succeeded; otherwise it is ``failed`` with a one-line note, and the
-    exception propagates.
+    it). Before any work, the store's and the outputs' directories must take
+    a file (:func:`check_writable`). The run is ``complete`` when every step
+    after the plan succeeded and every export was stored, ``partial`` (with
+    a note naming the exports) when some export failed or stored nothing
+    although it had rows (:func:`run_status`); otherwise, including when no
+    export reached the store (:class:`NothingStoredError`), it is ``failed``
+    with a one-line note, and the exception propagates.
     """
     steps = steps or ScanSteps()
     if isinstance(exports, (str, os.PathLike)):
         exports = [exports]
     exports = [os.fspath(e) for e in exports]
     with ScanLock(db, timeout=wait_s):
+        check_writable(Path(db).parent, "the store")
+        check_writable(out_dir, "the outputs")
         loops, problems = steps.read_registry(loops_csv)
         t0 = time.perf_counter()
         ingest, _ = steps.ingest(db, exports, loops, config.timezone, partitions,
                                  steps.report("ingest"))
         ingest_s = time.perf_counter() - t0
         run_id, jobs = steps.plan(db, loops, config, exports)
+        status, note = run_status(ingest)
         t1 = time.perf_counter()
         try:
+            if not ingest.usable:
+                raise NothingStoredError("no export reached the store: " + (
+                    "; ".join(ingest.incomplete) or "the exports hold no samples"))
             ranked = steps.rank(steps.analyse(db, run_id, jobs, config))
             analysis_s = time.perf_counter() - t1
             new_faults = steps.persist(db, run_id, ranked)
             info = run_info(db, loops_csv, exports, jobs, config, problems, ingest, new_faults)
+            info["status"], info["status_note"] = status, note
             paths = steps.outputs(ranked, out_dir, run_id, info)
             steps.publish(ranked, paths, run_id, new_faults)
-            steps.finish(db, run_id)
+            steps.finish(db, run_id, status, note)
         except BaseException as exc:
             steps.fail(db, run_id, exc)
             raise
@@ -326,7 +408,8 @@ def execute_scan(exports, loops_csv, db, out_dir, config: ScanConfig = ScanConfi
             steps.cleanup(db, run_id)
     return ScanSummary(run_id=run_id, results=tuple(ranked), outputs=paths, ingest=ingest,
                        registry_problems=tuple(problems), new_faults=tuple(new_faults),
-                       ingest_s=ingest_s, analysis_s=analysis_s)
+                       ingest_s=ingest_s, analysis_s=analysis_s, status=status,
+                       status_note=note or "")
 
 
 def run_scan(exports, loops_csv, db, out_dir, *, config: ScanConfig = ScanConfig(),

@@ -406,6 +406,10 @@ class ScanSummary:
         (:meth:`valvediag.store.Store.new_faults`).
     ingest_s, analysis_s : float
         Wall time of the ingest and of the analysis [s].
+    status : {'complete', 'partial'}
+        How the run ended (:func:`valvediag.scan.run.run_status`).
+    status_note : str
+        What a partial run misses (the exports not stored); empty otherwise.
     """
 
     run_id: str
@@ -416,6 +420,8 @@ class ScanSummary:
     new_faults: tuple[str, ...] = ()
     ingest_s: float = 0.0
     analysis_s: float = 0.0
+    status: str = "complete"
+    status_note: str = ""
 
     @property
     def errors(self) -> tuple[str, ...]:
@@ -428,14 +434,15 @@ class ScanSummary:
         Returns
         -------
         dict
-            ``run_id``, ``loops``, ``counts`` (every verdict, in
+            ``run_id``, ``status``, ``status_note``, ``loops``, ``counts`` (every verdict, in
             :data:`valvediag.verdicts.VERDICTS` order), ``new_faults``,
             ``outputs`` (absolute paths), ``ingest`` (``files``,
             ``rows_inserted``, ``rows_skipped_duplicate``,
             ``rows_quarantined``, ``errors``) and ``registry_problems``.
         """
         r = self.ingest
-        return {"run_id": self.run_id, "loops": len(self.results),
+        return {"run_id": self.run_id, "status": self.status, "status_note": self.status_note,
+                "loops": len(self.results),
                 "counts": count_verdicts(x.verdict for x in self.results),
                 "new_faults": list(self.new_faults),
                 "outputs": {k: str(Path(p).resolve()) for k, p in self.outputs.items()},

@@ -48,7 +48,8 @@ from ..io.registry import LoopSpec
 from ..plain import aware_utc, one_line, to_plain
 from ..verdicts import FAULT_VERDICTS, VERDICTS
 
-__all__ = ["Store", "StoreLockedError", "load_sql", "SQL_DIR", "EPISODE_COLUMNS", "VERDICT_COLUMNS"]
+__all__ = ["Store", "StoreLockedError", "load_sql", "SQL_DIR", "EPISODE_COLUMNS", "VERDICT_COLUMNS",
+           "RUN_END_STATUSES"]
 
 #: The named queries: ``sql/`` of the repository, shipped as ``valvediag.sql``.
 SQL_DIR = importlib.resources.files("valvediag.sql")
@@ -70,6 +71,11 @@ VERDICT_COLUMNS: dict[str, pl.DataType] = {
 _JSON_COLUMNS = ("evidence", "quality")
 _SAMPLE_FRAME_SCHEMA = {"ts": pl.Datetime("us", "UTC"), "value": pl.Float64, "status": pl.String}
 _HELD_ROLES = ("sp", "mode")
+#: How a run can end: ``complete`` (every step and every export), ``partial``
+#: (every step, but some export could not be read or stored nothing),
+#: ``failed`` (a step failed), ``aborted`` (the scan's process died).
+RUN_END_STATUSES = ("complete", "partial", "failed", "aborted")
+
 #: DuckDB's buffer-pool limit per connection: writer, reader. DuckDB's own
 #: default (80 % of RAM per database instance) lets a long ingest and every
 #: reader of the analysis cache gigabytes each. Environment variable
@@ -204,8 +210,8 @@ class Store:
             if fill_bounds:  # new store, or one made before sample_bounds existed
                 with self.transaction():
                     self.con.execute(load_sql("samples_bounds_rebuild"))
-            if not self.con.execute(load_sql("runs_has_owner")).fetchall()[0][0]:
-                with self.transaction():       # a store older than runs.owner/note
+            if not self.con.execute(load_sql("runs_current")).fetchall()[0][0]:
+                with self.transaction():       # a store older than runs.owner/note or 'partial'
                     self.con.execute(load_sql("runs_migrate"))
 
     # -- plumbing ----------------------------------------------------------
@@ -580,19 +586,21 @@ class Store:
 
     def finish_run(self, run_id: str, status: str = "complete", note: str | None = None
                    ) -> None:
-        """Mark a run ``complete``, ``failed`` or ``aborted`` and stamp ``finished_at``.
+        """Mark a run ``complete``, ``partial``, ``failed`` or ``aborted`` and stamp
+        ``finished_at``.
 
         Parameters
         ----------
         run_id : str
             The run (KeyError when unknown).
-        status : {"complete", "failed", "aborted"}
-            Only complete runs count as history.
+        status : {"complete", "partial", "failed", "aborted"}
+            Only complete and partial runs (every step ran, but some export
+            could not be read or stored nothing) count as history.
         note : str, optional
-            Why it failed or was aborted (one line).
+            Why it is partial, failed or was aborted (one line).
         """
-        if status not in ("complete", "failed", "aborted"):
-            raise ValueError(f"run status must be 'complete', 'failed' or 'aborted', "
+        if status not in RUN_END_STATUSES:
+            raise ValueError(f"run status must be one of {', '.join(RUN_END_STATUSES)}, "
                              f"not {status!r}")
         self.run(run_id)
         self._run("run_finish", run_id=run_id, status=status, note=note)
@@ -711,17 +719,17 @@ class Store:
 
     def new_faults(self, run_id: str) -> pl.DataFrame:
         """Loops that are faulty in run ``run_id`` and were not in the latest
-        complete run before it.
+        complete (or partial) run before it.
 
         A loop is listed when its verdict in ``run_id`` is one of
-        :data:`valvediag.verdicts.FAULT_VERDICTS` and in the previous complete run it was not (or
-        the loop was absent, or there is no earlier complete run). The run
-        itself may still be running.
+        :data:`valvediag.verdicts.FAULT_VERDICTS` and in the previous complete
+        or partial run it was not (or the loop was absent, or there is no
+        earlier such run). The run itself may still be running.
         """
         return self.query("new_faults_of_run", run_id=run_id, faults=list(FAULT_VERDICTS))
 
     def new_since_last_run(self) -> pl.DataFrame:
-        """Loops that turned faulty in the latest complete run (see
+        """Loops that turned faulty in the latest complete (or partial) run (see
         :meth:`new_faults`)."""
         last = self.query("run_latest_complete")["run_id"].to_list()
         return self.new_faults(last[0] if last else "")

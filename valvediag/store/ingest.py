@@ -99,6 +99,26 @@ class IngestReport:
         """True when no file failed."""
         return not self.errors
 
+    @property
+    def incomplete(self) -> tuple[str, ...]:
+        """One line per export whose samples did not reach the store: the
+        file (or pattern) failed (:attr:`errors`), or it had rows and every
+        one was quarantined. Each names the file."""
+        empty = tuple(f"{r.path}: all {r.rows_quarantined:,} rows were quarantined, none "
+                      f"stored (their reasons are in the store's quarantine table)"
+                      for r in self.per_file
+                      if r.error is None and not r.unchanged and r.rows_quarantined > 0
+                      and r.rows_inserted + r.rows_skipped_duplicate == 0)
+        return tuple(self.errors) + empty
+
+    @property
+    def usable(self) -> bool:
+        """True when at least one export was stored, or was stored by an
+        earlier run (unchanged since): the store holds what the exports
+        say."""
+        return any(r.error is None and (r.unchanged or r.rows_inserted + r.rows_skipped_duplicate)
+                   for r in self.per_file)
+
 
 # --------------------------------------------------------------------------
 # layout detection
