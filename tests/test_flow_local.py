@@ -140,15 +140,31 @@ def test_rerun_skips_ingested_exports_and_adds_a_complete_run(first_run, plant):
 
 
 @pytest.mark.system
-def test_failed_step_marks_the_run_failed(prefect_api, plant, tmp_path):
-    blocker = tmp_path / "out"
-    blocker.write_text("a file where the output directory should go")
-    state = _scan(plant, tmp_path / "plant.duckdb", blocker)
+def test_failed_step_marks_the_run_failed(prefect_api, plant, tmp_path, monkeypatch):
+    import valvediag.pipelines.nightly
+
+    def broken(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(valvediag.pipelines.nightly, "write_outputs", broken)
+    state = _scan(plant, tmp_path / "plant.duckdb", tmp_path / "out")
     assert state.is_failed()
     with Store(tmp_path / "plant.duckdb", read_only=True) as store:
         runs = store.runs()
     assert runs["status"].to_list() == ["failed"]
-    assert runs["finished_at"][0] is not None
+    assert runs["finished_at"][0] is not None and "No space left" in runs["note"][0]
+
+
+@pytest.mark.system
+def test_an_output_path_that_is_a_file_fails_before_any_work(prefect_api, plant, tmp_path):
+    blocker = tmp_path / "out"
+    blocker.write_text("a file where the output directory should go")
+    state = _scan(plant, tmp_path / "plant.duckdb", blocker)
+    assert state.is_failed()
+    assert "cannot write the outputs here" in str(state.result(raise_on_failure=False))
+    if (tmp_path / "plant.duckdb").exists():
+        with Store(tmp_path / "plant.duckdb", read_only=True) as store:
+            assert store.runs().height == 0 and store.counts()["samples"] == 0
 
 
 @pytest.mark.system
