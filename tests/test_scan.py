@@ -159,6 +159,10 @@ def test_quiet_loop_is_no_oscillation_and_a_snapshot_says_what_it_covers():
      "all 50 PV samples of LIC1.PV in the window are bad states (I/O Timeout)"),
     (SPEC, {"pv": frame(range(40), range(40)), "op": frame(range(40), range(40))}, (),
      "no stretch of usable PV and OP data lasting 10 min"),
+    (SPEC, {"pv": frame([30], [3.0]), "op": frame(range(50), range(50))}, (),
+     "PV tag LIC1.PV has a single valid sample from"),
+    (SPEC, {"pv": frame(range(50), range(50)), "op": frame(range(50), [40.0] + [None] * 49)},
+     (), "OP tag LIC1.OP has a single valid sample from"),
 ])
 def test_unusable_loops_get_insufficient_data_with_the_reason(spec, frames, problems, expect):
     r = analyse_loop(job_for(spec, 100, problems=problems), frames)

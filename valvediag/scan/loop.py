@@ -429,6 +429,10 @@ def _check_frames(job: LoopJob, frames: Mapping[str, pl.DataFrame]) -> str | Non
         if f["value"].null_count() == f.height:
             return (f"all {f.height} {role.upper()} samples of {tag} in the window are bad "
                     f"states ({_status_summary(f)})")
+        valid = f.height - f["value"].null_count()
+        if valid < 2 or f["ts"].drop_nulls().n_unique() < 2:
+            return (f"{role.upper()} tag {tag} has a single valid sample from {window}: no "
+                    f"sample time, no trend")
     return None
 
 
