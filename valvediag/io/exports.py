@@ -908,10 +908,31 @@ def iter_export(path: str | os.PathLike, *, timezone: str | None = None,
     state_set = frozenset(s.strip().lower() for s in (DIGITAL_STATES if states is None else states))
     if not os.path.isfile(path):
         raise ExportError(f"{path}: no such file")
+    _refuse_archives(path)
     if path.lower().endswith(_PARQUET_SUFFIXES):
         yield from _parse_parquet(path, timezone, state_set, chunk_rows)
     else:
         yield from _parse_csv(path, timezone, state_set, chunk_rows)
+
+
+#: Leading bytes of compressed or archive files, which are not exports as they stand.
+_ARCHIVES = ((b"\x1f\x8b", "gzip-compressed", "gunzip"), (b"PK\x03\x04", "a zip archive", "unzip"),
+             (b"BZh", "bzip2-compressed", "bunzip2"), (b"\xfd7zXZ\x00", "xz-compressed", "unxz"),
+             (b"(\xb5/\xfd", "zstd-compressed", "unzstd"))
+
+
+def _refuse_archives(path: str) -> None:
+    """An :class:`ExportError` for a compressed file or an archive (read as
+    text it would give a misleading parse error)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(6)
+    except OSError:
+        return          # reported by the reader, with its own words
+    for magic, what, tool in _ARCHIVES:
+        if head.startswith(magic):
+            raise ExportError(f"{path}: the file is {what}; {tool} it and give the "
+                              f"extracted CSV or Parquet file")
 
 
 def parse_export(path: str | os.PathLike, *, timezone: str | None = None,

@@ -93,6 +93,25 @@ def _pick_columns(header, columns, path):
     return out
 
 
+def _ragged_line(path: Path) -> str | None:
+    """``'line N has K fields, the header M'`` for the first row whose field
+    count differs from the header's, or None (the file is not ragged, or
+    cannot be read as text)."""
+    import csv
+
+    try:
+        with open(path, newline="", encoding="utf-8", errors="replace") as fh:
+            rows = csv.reader(fh)
+            width = len(next(rows, []))
+            for row in rows:
+                if row and len(row) != width:
+                    return (f"line {rows.line_num} has {len(row)} fields, the header "
+                            f"{width}")
+    except (OSError, csv.Error):
+        return None
+    return None
+
+
 def _seconds(col: pl.Series, path) -> np.ndarray:
     """Timestamps to seconds since the epoch; ISO 8601 text or numbers."""
     if col.dtype.is_numeric():
@@ -101,10 +120,26 @@ def _seconds(col: pl.Series, path) -> np.ndarray:
     num = s.cast(pl.Float64, strict=False)
     if num.null_count() == s.null_count():
         return num.to_numpy()
+    if 2 * (s.len() - num.null_count()) >= s.len() - s.null_count():
+        # mostly epoch seconds: the odd one out is the value at fault
+        i = int(np.flatnonzero((num.is_null() & s.is_not_null()).to_numpy())[0])
+        j = int(np.flatnonzero(num.is_not_null().to_numpy())[0])
+        raise LoopFileError(f"{path}: line {i + 2}: timestamp {s[i]!r} is not a number of "
+                            f"seconds like the others (line {j + 2}: {s[j]!r})")
     parsed = s.str.to_datetime(time_unit="us", time_zone="UTC", strict=False)
     bad = parsed.is_null() & s.is_not_null()
     if bad.any():
         i = int(np.flatnonzero(bad.to_numpy())[0])
+        # polars infers one format for the column: a valid value in another form (with an
+        # offset where the first had none, or the reverse) fails only because of the mix
+        alone = pl.Series([s[i]]).str.to_datetime(time_unit="us", time_zone="UTC", strict=False)
+        if alone.null_count() == 0:
+            first = int(np.flatnonzero(parsed.is_not_null().to_numpy())[0]) \
+                if parsed.is_not_null().any() else 0
+            raise LoopFileError(
+                f"{path}: line {i + 2}: timestamp {s[i]!r} is written differently from line "
+                f"{first + 2} ({s[first]!r}): time stamps with and without a UTC offset "
+                f"(or in two formats) are mixed; write them all one way")
         raise LoopFileError(f"{path}: line {i + 2}: timestamp {s[i]!r} is neither ISO 8601 nor seconds")
     return parsed.dt.epoch("us").cast(pl.Float64).to_numpy() / 1e6
 
@@ -152,7 +187,8 @@ def read_loop_csv(path, *, columns: dict | None = None):
     try:
         df = pl.read_csv(path, infer_schema=False, truncate_ragged_lines=False)
     except Exception as exc:   # polars raises several error types for malformed CSV
-        raise LoopFileError(f"{path}: not a readable CSV ({str(exc).splitlines()[0]})") from None
+        raise LoopFileError(f"{path}: {_ragged_line(path) or 'not a readable CSV'} "
+                            f"({str(exc).splitlines()[0]})") from None
     if df.height == 0:
         raise LoopFileError(f"{path}: the file has a header but no rows")
     cols = _pick_columns(df.columns, columns, path)

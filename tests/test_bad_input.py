@@ -1,0 +1,113 @@
+"""Bad input, as a table: each input and the one-line outcome a user gets.
+
+Single-loop files (``valvediag bi``) and historian exports (the scan's
+ingest). Every message is one line and names the file; where a line of the
+file is at fault, the message names it too. The scan-level cases (a missing
+export path, an unwritable output directory, a night that stored nothing, a
+partial night) are in ``tests/test_scan.py`` and ``tests/test_flow_local.py``.
+"""
+from __future__ import annotations
+
+import gzip
+import zipfile
+
+import pytest
+
+from valvediag.io.exports import ExportError, parse_export
+from valvediag.io.loopfile import LoopFileError, read_loop_csv
+
+GOOD_ROWS = "".join(f"{k},{k % 7},{k % 5}\n" for k in range(30))
+
+
+def _gzip(path, text):
+    path.write_bytes(gzip.compress(text.encode()))
+
+
+def _zip(path, text):
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("export.csv", text)
+
+
+# (case, file name, content (text, or a writer), words the one-line error holds)
+LOOP_FILES = [
+    ("missing file", "absent.csv", None, ["no such file"]),
+    ("empty file", "empty.csv", "", ["the file is empty"]),
+    ("header only", "header.csv", "timestamp,pv,op\n", ["a header but no rows"]),
+    ("missing columns", "cols.csv", "when,what\n1,2\n", ["missing column(s) timestamp, pv, op",
+                                                         "columns: when, what"]),
+    ("ragged row", "ragged.csv", "timestamp,pv,op\n0,1,2\n1,1,2,3\n2,1,2\n",
+     ["line 3 has 4 fields, the header 3"]),
+    ("text in the time column", "text_ts.csv", "timestamp,pv,op\n0,1,2\nsoon,1,2\n",
+     ["line 3", "'soon' is not a number of seconds like the others"]),
+    ("naive and offset time stamps mixed", "mixed.csv",
+     "timestamp,pv,op\n2026-11-01T00:00:00,1,2\n2026-11-01T00:00:01+00:00,1,2\n",
+     ["line 3", "written differently from line 2", "with and without a UTC offset"]),
+    ("empty time stamp", "empty_ts.csv", "timestamp,pv,op\n0,1,2\n,1,2\n2,1,2\n",
+     ["line 3: empty timestamp"]),
+    ("time running backwards", "backwards.csv", "timestamp,pv,op\n0,1,2\n5,1,2\n3,1,2\n",
+     ["line"]),
+]
+
+
+@pytest.mark.parametrize("case, name, content, words", LOOP_FILES,
+                         ids=[c[0] for c in LOOP_FILES])
+def test_single_loop_file_errors_are_one_line_naming_file_and_line(tmp_path, case, name,
+                                                                   content, words):
+    path = tmp_path / name
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(LoopFileError) as err:
+        read_loop_csv(path)
+    msg = str(err.value)
+    assert "\n" not in msg and str(path) in msg, msg
+    for w in words:
+        assert w in msg, (w, msg)
+
+
+def test_a_good_single_loop_file_reads():
+    # the table's control: the same layout without the fault reads
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "good.csv"
+        p.write_text("timestamp,pv,op\n" + GOOD_ROWS)
+        rec, _ = read_loop_csv(p)
+    assert rec.pv.size == 30
+
+
+LONG = "tag,timestamp,value,status\nFIC1.PV,2026-11-01T00:00:00Z,1.5,\n"
+EXPORTS = [
+    ("missing file", "absent.csv", None, ["no such file"]),
+    ("empty file", "empty.csv", "", ["empty"]),
+    ("unknown columns", "cols.csv", "foo,bar,baz\n1,2,3\n", ["foo", "bar"]),
+    ("gzip-compressed CSV", "export.csv.gz", lambda p: _gzip(p, LONG),
+     ["gzip-compressed", "gunzip it"]),
+    ("zip archive", "export.zip", lambda p: _zip(p, LONG), ["a zip archive", "unzip it"]),
+    ("not Parquet", "export.parquet", "tag,timestamp\n", ["parquet"]),
+    ("naive time stamps without a time zone", "naive.csv",
+     "tag,timestamp,value\nFIC1.PV,2026-11-01 00:00:00,1.5\nFIC1.PV,2026-11-01 00:00:05,1.6\n",
+     ["time zone"]),
+]
+
+
+@pytest.mark.parametrize("case, name, content, words", EXPORTS, ids=[c[0] for c in EXPORTS])
+def test_export_errors_are_one_line_naming_the_file(tmp_path, case, name, content, words):
+    path = tmp_path / name
+    if callable(content):
+        content(path)
+    elif content is not None:
+        path.write_text(content)
+    with pytest.raises(ExportError) as err:
+        parse_export(path)
+    msg = str(err.value)
+    assert "\n" not in msg and str(path) in msg, msg
+    for w in words:
+        assert w.lower() in msg.lower(), (w, msg)
+
+
+def test_the_same_export_uncompressed_parses(tmp_path):
+    # the table's control for the archives: the text they hold is a good export
+    path = tmp_path / "export.csv"
+    path.write_text(LONG)
+    assert parse_export(path).samples.height == 1
