@@ -140,3 +140,14 @@ def test_public_functions_document_their_parameters(module):
             if not doc or lost:
                 missing[label] = lost or "no docstring"
     assert missing == {}
+
+
+def test_a_description_of_200_kb_keeps_its_loop_shortened_with_a_problem(tmp_path):
+    # the csv module's default field limit (128 KiB) used to drop the row
+    path = write(tmp_path, "loop,pv_tag,op_tag,description\n"
+                           f"FIC1,FIC1.PV,FIC1.OP,{'x' * 200_000}\nFIC2,FIC2.PV,FIC2.OP,short\n")
+    loops, problems = read_loops_csv(path)
+    assert [lp.loop for lp in loops] == ["FIC1", "FIC2"]
+    assert len(loops[0].description) == 2000 and loops[1].description == "short"
+    assert problems == [f"{path} line 2 (loop FIC1): description of 200,000 characters "
+                        f"shortened to 2,000"]

@@ -42,6 +42,8 @@ __all__ = ["LoopSpec", "RegistryError", "read_loops_csv", "PROCESS_TYPES", "ROLE
 PROCESS_TYPES = ("integrating", "self-regulating", "unknown")
 #: Signal roles of a loop, in the order ``LoopSpec.tags`` lists them.
 ROLES = ("pv", "op", "sp", "mv", "mode")
+#: Longest description kept [characters]; a longer one is shortened, with a problem line.
+DESCRIPTION_MAX = 2000
 
 _COLUMNS = {
     "loop": ("loop", "name", "loop_name"),
@@ -209,10 +211,15 @@ def _row_to_spec(row: dict[str, str], where: str) -> tuple[LoopSpec, list[str]]:
         note(f"invalid criticality {row.get('criticality')!r} (must be >= 0); using 1.0")
         crit = 1.0
 
+    description = row.get("description", "")
+    if len(description) > DESCRIPTION_MAX:
+        note(f"description of {len(description):,} characters shortened to "
+             f"{DESCRIPTION_MAX:,}")
+        description = description[:DESCRIPTION_MAX - 1] + "\u2026"
     spec = LoopSpec(loop=row["loop"], pv_tag=tags["pv"], op_tag=tags["op"], sp_tag=tags["sp"],
                     mv_tag=tags["mv"], mode_tag=tags["mode"], process_type=ptype,
                     unit=row.get("unit") or None, span=span, criticality=crit,
-                    description=row.get("description", ""), issues=tuple(issues))
+                    description=description, issues=tuple(issues))
     return spec, problems
 
 
@@ -240,6 +247,10 @@ def read_loops_csv(path: str | os.PathLike) -> tuple[list[LoopSpec], list[str]]:
     """
     path = os.fspath(path)
     text = _read_text(path)
+    # a field may be as long as the file (a long description); the csv module's
+    # default limit (128 KiB) would drop its row
+    if csv.field_size_limit() < len(text):
+        csv.field_size_limit(len(text))
     reader = csv.reader(io.StringIO(text))
     try:
         header = next((r for r in reader if any(c.strip() for c in r)), None)
