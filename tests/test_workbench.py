@@ -193,11 +193,22 @@ def test_effect_names_and_units():
     (np.sin(np.arange(2000) / 30), np.full(2000, 40.0), "never moves"),
     (np.zeros(2000), np.linspace(0, 50, 2000), "does not oscillate"),
     (np.zeros(2000), np.zeros(1999), "samples"),
+    (np.full(2000, 3.5), 40 + 5 * np.sin(np.arange(2000) / 30), "the PV never moves"),
 ])
 def test_bad_data_one_line_errors(pv, op, match):
     with pytest.raises(WorkbenchDataError, match=match) as exc:
         prepare_loop(pv, op, 1.0)
     assert "\n" not in str(exc.value)
+
+
+@pytest.mark.parametrize("placeholder", [-9999.0, 9.9e37])
+def test_a_placeholder_sample_does_not_wreck_the_fit(clean_backlash, placeholder):
+    sim, data = clean_backlash
+    pv = sim.pv.copy()
+    pv[pv.size // 2] = placeholder
+    model = LoopModel(("deadband", "dead_time", "lag"))
+    clean, spiked = model.fit(data), model.fit(prepare_loop(pv, sim.op, 1.0))
+    assert spiked.fit_pct > 90 and abs(spiked.params["DB"] - clean.params["DB"]) < 0.05
 
 
 def test_missing_samples_are_left_out(clean_backlash):

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..analysis.quality import white_noise_std
+from ..analysis.quality import despike, white_noise_std
 from .kernels import nudge_holds, turning_points
 
 __all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "white_noise_std"]
@@ -272,10 +272,13 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     WorkbenchDataError
         Arrays of different lengths, a record too short, an OP that never
         moves or never reverses (no oscillation to explain), a PV that is
-        all missing.
+        all missing or never moves (frozen).
 
     Notes
     -----
+    Isolated gross outliers of PV and OP (placeholders such as -9999 or
+    9.9e37, one-sample spikes) are masked first
+    (:func:`valvediag.analysis.quality.despike`), as the scan masks them.
     Missing OP samples are held (so the valve chain can run) and every
     segment that contains a missing PV or OP sample is left out of fit and
     score. The first samples, until the OP has reversed and then travelled
@@ -300,6 +303,9 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
             raise WorkbenchDataError(f"pv has {n} samples but sp has {sp.size}")
     if n < MIN_SAMPLES:
         raise WorkbenchDataError(f"record too short: {n} samples (need at least {MIN_SAMPLES})")
+    # placeholders (-9999, 9.9e37) and one-sample spikes would dominate every
+    # squared error: masked as the scan masks them
+    pv, op_raw = despike(pv)[0], despike(op_raw)[0]
     okp, oko = np.isfinite(pv), np.isfinite(op_raw)
     if okp.sum() < MIN_SAMPLES or oko.sum() < MIN_SAMPLES:
         raise WorkbenchDataError(f"too few valid samples (pv {int(okp.sum())}, op {int(oko.sum())}; "
@@ -318,6 +324,9 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     if rev.size < 2:
         raise WorkbenchDataError(f"the OP does not oscillate ({rev.size} reversal(s) larger than "
                                  f"{delta:.3g}); the workbench needs a moving, reversing OP")
+    if not np.ptp(pv[okp]) > 0:
+        raise WorkbenchDataError(f"the PV never moves (every valid sample is {pv[okp][0]:.6g}): "
+                                 "a frozen or stale measurement; there is nothing to model")
     held = float(np.mean(dop == 0.0)) if dop.size else 0.0
     # period: twice the median spacing of the reversals (robust to start-up
     # transients and irregular cycles, unlike the ACF)
