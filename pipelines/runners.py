@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import contextlib
 import os
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 
 from prefect.task_runners import ProcessPoolTaskRunner
 
 __all__ = ["loop_batches", "batch_arguments", "map_on_threads", "map_on_processes",
-           "map_on_dask", "dask_runner", "temporary_api_for_workers", "WORKER_THREAD_ENV",
+           "map_on_dask", "dask_runner", "temporary_api", "WORKER_THREAD_ENV",
            "ANALYSIS_THREADS", "ANALYSIS_PROCESSES", "MIN_LOOPS_FOR_PROCESSES", "BATCH_LOOPS",
            "BATCHES_PER_WORKER"]
 
@@ -253,20 +255,34 @@ def map_on_dask(task, jobs: Sequence, paths: Sequence[str], unmapped_params: dic
         return _collect(runner.map(task, params), batches, len(jobs), progress)
 
 
+#: The watchdog of :func:`temporary_api`: argv ``parent-pid server-pid``. It
+#: stops the server (SIGTERM, then SIGKILL) once its parent has died, however
+#: it died; the parent terminates it when the server is stopped normally.
+_SERVER_WATCHDOG = """
+import os, signal, sys, time
+parent, server = int(sys.argv[1]), int(sys.argv[2])
+while os.getppid() == parent:
+    time.sleep(0.5)
+for sig, wait in ((signal.SIGTERM, 5.0), (signal.SIGKILL, 0.0)):
+    try:
+        os.kill(server, sig)
+    except ProcessLookupError:
+        break
+    time.sleep(wait)
+"""
+
+
 @contextlib.contextmanager
-def temporary_api_for_workers(needed: bool) -> Iterator[None]:
-    """Without ``PREFECT_API_URL``, give Dask workers one temporary Prefect server.
+def temporary_api() -> Iterator[None]:
+    """Without ``PREFECT_API_URL``, one temporary Prefect server for the scan.
 
-    Prefect would otherwise start a temporary server in every worker process
-    (slow, and each on the same SQLite file). The server is started once here
+    Prefect would otherwise start a temporary server of its own, and one in
+    every Dask worker process (slow, and each on the same SQLite file), and a
+    scan killed with SIGKILL would leave it running. The server is started
+    once here, with a watchdog process that stops it if this process dies,
     and stopped, with the run's last log lines flushed, at the end.
-
-    Parameters
-    ----------
-    needed : bool
-        The scan runs on Dask (else nothing is started).
     """
-    if not needed or os.environ.get("PREFECT_API_URL"):
+    if os.environ.get("PREFECT_API_URL"):
         yield
         return
     from prefect.server.api.server import SubprocessASGIServer
@@ -274,6 +290,9 @@ def temporary_api_for_workers(needed: bool) -> Iterator[None]:
 
     server = SubprocessASGIServer()
     server.start(timeout=180)
+    watchdog = subprocess.Popen([sys.executable, "-c", _SERVER_WATCHDOG, str(os.getpid()),
+                                 str(server.server_process.pid)], start_new_session=True,
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
     os.environ["PREFECT_API_URL"] = server.api_url     # for the worker processes
     try:
         with temporary_settings(updates={PREFECT_API_URL: server.api_url}):
@@ -283,4 +302,6 @@ def temporary_api_for_workers(needed: bool) -> Iterator[None]:
 
         APILogHandler().flush()  # the run's last log lines, before the server goes
         os.environ.pop("PREFECT_API_URL", None)
+        watchdog.terminate()
+        watchdog.wait()
         server.stop()

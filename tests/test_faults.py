@@ -8,6 +8,7 @@ and the killed run must end ``aborted``, never ``complete``.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -320,3 +321,56 @@ def test_store_made_before_partial_runs_is_migrated_and_keeps_owner_and_note(tmp
     assert runs["note"].to_list() == ["disk full", "x.csv: unreadable"]
     with Store(db) as store, pytest.raises(ValueError, match="run status must be one of"):
         store.finish_run("r2", "half-done")
+
+
+def _children(pid: int) -> list[tuple[int, str]]:
+    """(pid, command line) of the live child processes of ``pid``."""
+    found = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+            found.append((int(d.name), cmd))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.system
+def test_a_scan_killed_by_sigkill_does_not_leave_its_temporary_server_running(plant, tmp_path):
+    env = _env("unused")
+    env.pop("PREFECT_API_URL")          # the scan starts its own temporary server
+    env["PREFECT_HOME"] = str(tmp_path / "prefect_home")
+    proc = subprocess.Popen([sys.executable, "-m", "valvediag", *_scan_args(plant, tmp_path)],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    try:
+        # the server, once its watchdog runs (from the moment the server answers)
+        deadline, server, watchdog = time.monotonic() + TIMEOUT_S, None, None
+        while watchdog is None and time.monotonic() < deadline and proc.poll() is None:
+            children = _children(proc.pid)
+            server = next((p for p, cmd in children if "uvicorn" in cmd), None)
+            watchdog = next((p for p, cmd in children if "getppid" in cmd), None)
+            time.sleep(0.1)
+        assert server is not None and watchdog is not None, "no temporary server seen"
+        proc.send_signal(signal.SIGKILL)            # the scan alone, not its process group
+        proc.wait(timeout=30)
+        assert _alive(server)
+        deadline = time.monotonic() + 30
+        while _alive(server) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not _alive(server), "the temporary server outlived the killed scan"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)

@@ -31,9 +31,10 @@ loop needing action) and OUT/verdicts.json (every loop). The store keeps the
 samples and the history of runs; exports ingested before are skipped.
 
 This runs the same Prefect flow as the nightly deployment (nightly-scan/nightly,
-see 'make serve'), here in this process. Without PREFECT_API_URL Prefect starts
-a temporary local server for the run (a few seconds); with PREFECT_API_URL set
-(for example after 'make serve') the run also shows in that server's dashboard.
+see 'make serve'), here in this process. Without PREFECT_API_URL the command
+starts a temporary local Prefect server for the run (a few seconds), which a
+watchdog stops even if the scan is killed; with PREFECT_API_URL set (for
+example after 'make serve') the run also shows in that server's dashboard.
 """
 
 EPILOG = """\
@@ -201,13 +202,13 @@ def run(args) -> int:
         # warnings of the run are printed below, once
         os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "ERROR")
     from valvediag.pipelines.nightly import nightly_scan, progress_to
-    from valvediag.pipelines.runners import temporary_api_for_workers
+    from valvediag.pipelines.runners import temporary_api
 
     from .progress import StageProgress
 
     stages = StageProgress(STAGE_LABELS)
     with _scan_lock(args.db, args.wait), stages, progress_to(stages), \
-            temporary_api_for_workers(bool(args.workers or args.dask_address)):
+            temporary_api():
         state = nightly_scan(exports=exports, loops=args.loops, db=args.db, out=args.out,
                              window_hours=config.window_hours, method=config.method,
                              min_cycles=config.min_cycles, timezone=config.timezone,
