@@ -198,7 +198,11 @@ def test_scan_json_prints_every_loop(prefect_api, plant, registry_loops, tmp_pat
                          "--window-hours", "3", "--method", "robust"], capsys, monkeypatch)
     assert rc == 0, err
     doc = json.loads(out)
-    assert set(doc) == {"run_id", "loops"}
+    assert list(doc) == ["run_id", "status", "status_note", "ingest", "loops"]
+    assert doc["status"] == "complete" and doc["status_note"] == ""
+    assert {f["file"] for f in doc["ingest"]} == {str(p) for p in (plant / "exports").iterdir()}
+    assert all(f["rows_read"] == f["rows_stored"] > 0 and f["rows_quarantined"] == 0
+               and f["error"] is None for f in doc["ingest"])
     assert doc == json.loads((tmp_path / "out" / "verdicts.json").read_text())
     assert sorted(v["loop"] for v in doc["loops"]) == registry_loops
     for v in doc["loops"]:

@@ -650,3 +650,30 @@ def test_prefetch_stops_its_worker_when_the_caller_stops():
     gen.close()
     assert threading.active_count() == before
     assert len(produced) <= 3
+
+
+def test_rows_quarantined_for_a_missing_time_zone_are_recovered_by_a_rerun_with_it(tmp_path):
+    # naive rows among offset ones: quarantined without a time zone, a cause the user fixes
+    # by giving one; the file must not count as read, so the re-run recovers them
+    path = write(tmp_path, "m.csv", "tag,timestamp,value\n"
+                                    "A,2024-01-01T00:00:00Z,1\n"
+                                    "A,2024-01-01 00:00:01,2\n"
+                                    "A,2024-01-01 00:00:02,3\n"
+                                    "A,2024-01-01T00:00:03Z,x\n")
+    with Store(tmp_path / "s.duckdb") as store:
+        first = ingest_exports(store, [path]).per_file[0]
+        assert (first.rows_inserted, first.rows_quarantined, first.fixable) == (1, 3, 2)
+        assert first.reasons[0] == ("timestamp has no UTC offset and no time zone is "
+                                    "configured (the file mixes naive and offset time stamps)", 2)
+        assert first.reasons[1] == ("non-numeric value '…'", 1)
+        report = ingest_exports(store, [path])
+        assert not report.per_file[0].unchanged          # read again: not recorded as read
+        assert any("a cause a setting fixes" in line for line in report.incomplete)
+        fixed = ingest_exports(store, [path], timezone="UTC").per_file[0]
+        assert (fixed.rows_inserted, fixed.rows_skipped_duplicate, fixed.fixable) == (2, 1, 0)
+        again = ingest_exports(store, [path], timezone="UTC")
+        assert again.per_file[0].unchanged and again.incomplete == ()
+        assert store.counts()["samples"] == 3 and store.duplicate_keys() == 0
+        line = fixed.summary()
+    assert line.startswith(f"{path}: 3 rows read, 2 stored, 1 already stored, 1 quarantined")
+    assert "non-numeric value" in line and "\n" not in line

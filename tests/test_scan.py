@@ -424,6 +424,13 @@ def test_bad_input_and_history_through_run_scan(small_plant):
     assert set(s2.new_faults) == faulty & set(held_out) != set()
     report = s2.outputs["report"].read_text()
     assert "LIC900.PV not found in the exports" in report and str(bad) in report
+    # verdicts.json says how the run ended and what each export read this time gave
+    doc = json.loads(s2.outputs["verdicts"].read_text())
+    assert doc["status"] == "partial" and str(bad) in doc["status_note"]
+    files = {f["file"]: f for f in doc["ingest"]}
+    assert set(files) == {str(bad), str(exports / "zz_duplicates.csv")}   # the rest unchanged
+    assert files[str(bad)]["error"] and files[str(bad)]["rows_read"] == 0
+    assert files[str(exports / "zz_duplicates.csv")]["rows_already_stored"] == 598
 
 
 def test_grid_is_in_phase_with_the_pv_samples():

@@ -228,6 +228,8 @@ def run(args) -> int:
         _print_summary(summary)
     for line in summary["ingest"]["errors"] + summary["registry_problems"]:
         print(f"valvediag scan: warning: {line}", file=sys.stderr)
+    for line in summary["ingest"]["quarantined"]:
+        print(f"valvediag scan: rows quarantined: {line}", file=sys.stderr)
     if summary["status"] != "complete":
         print(f"valvediag scan: the run {summary['run_id']} is {summary['status']}: "
               f"{summary['status_note']}", file=sys.stderr)

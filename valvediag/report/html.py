@@ -204,7 +204,8 @@ def render_report(results: Sequence, *, run_id: str, run_info: Mapping | None = 
         area; default the folder of ``loops_csv``), ``window_start``,
         ``window_end``, ``generated`` (datetimes or ISO text), ``exports``
         (list), ``loops_csv``, ``db``, ``config`` (dict), lists of
-        one-line ``registry_problems`` and ``ingest_errors``, and the run's
+        one-line ``registry_problems``, ``ingest_errors`` and
+        ``ingest_quarantine`` (files with rows quarantined), and the run's
         ``status`` (``'partial'`` shows a banner) and ``status_note``.
     history : valvediag.report.history.PlantHistory, optional
         This run compared with the earlier ones (new, repeat, resolved);
@@ -290,6 +291,7 @@ def render_report(results: Sequence, *, run_id: str, run_info: Mapping | None = 
         verdicts=[(v, VERDICT_LABELS.get(v, v)) for v in RANK_ORDER if v in counts],
         registry_problems=[str(p) for p in info.get("registry_problems") or []],
         ingest_errors=[str(p) for p in info.get("ingest_errors") or []],
+        ingest_quarantine=[str(p) for p in info.get("ingest_quarantine") or []],
         run_status=info.get("status") or "complete", status_note=info.get("status_note") or "",
     )
 

@@ -82,7 +82,8 @@ def _sig(x, digits: int = 6):
     return x
 
 
-def write_verdicts_json(results: Sequence[LoopResult], path, *, run_id: str) -> Path:
+def write_verdicts_json(results: Sequence[LoopResult], path, *, run_id: str,
+                        run_info: Mapping | None = None) -> Path:
     """Write ``verdicts.json``.
 
     Parameters
@@ -93,6 +94,11 @@ def write_verdicts_json(results: Sequence[LoopResult], path, *, run_id: str) -> 
         Output file.
     run_id : str
         The run.
+    run_info : mapping, optional
+        From a scan: its ``status`` and ``status_note``, and ``ingest_files``
+        (per export read this time: rows read, stored, already stored,
+        quarantined and the quarantine's reasons), written as ``status``,
+        ``status_note`` and ``ingest``.
 
     Returns
     -------
@@ -102,9 +108,16 @@ def write_verdicts_json(results: Sequence[LoopResult], path, *, run_id: str) -> 
     for r in results:      # only the keys written: to_json() would clean the evidence too
         d = to_plain({k: getattr(r, k, None) for k in VERDICT_KEYS})
         loops.append({k: _sig(d.get(k)) for k in VERDICT_KEYS})
+    doc = {"run_id": run_id}
+    info = run_info or {}
+    if "status" in info:
+        doc.update(status=info["status"], status_note=info.get("status_note") or "")
+    if "ingest_files" in info:
+        doc["ingest"] = info["ingest_files"]
+    doc["loops"] = loops
     path = Path(path)
-    path.write_text(json.dumps({"run_id": run_id, "loops": to_plain(loops)}, indent=1,
-                               allow_nan=False, ensure_ascii=False) + "\n", encoding="utf-8")
+    path.write_text(json.dumps(to_plain(doc), indent=1, allow_nan=False, ensure_ascii=False)
+                    + "\n", encoding="utf-8")
     return path
 
 
@@ -314,7 +327,8 @@ def write_outputs(results: Sequence[LoopResult], out_dir, *, run_id: str,
     staging = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=out))
     try:
         written = {
-            "verdicts": write_verdicts_json(results, staging / "verdicts.json", run_id=run_id),
+            "verdicts": write_verdicts_json(results, staging / "verdicts.json", run_id=run_id,
+                                            run_info=info),
             "work_orders": write_work_orders(results, staging / "work_orders.csv",
                                              history=history, run_id=run_id),
             "work_orders_json": write_work_orders_json(results, staging / "work_orders.json",

@@ -282,6 +282,8 @@ def run_info(db, loops_csv, exports: Sequence[str], jobs: Sequence[LoopJob],
             "window_end": max((j.end for j in jobs), default=None),
             "config": config.to_json(), "registry_problems": list(registry_problems),
             "ingest_errors": list(ingest.incomplete), "new_faults": list(new_faults),
+            "ingest_quarantine": [f.summary() for f in ingest.quarantined_files],
+            "ingest_files": [f.as_dict() for f in ingest.per_file if not f.unchanged],
             "generated": dt.datetime.now(_UTC)}
 
 

@@ -438,7 +438,9 @@ class ScanSummary:
             :data:`valvediag.verdicts.VERDICTS` order), ``new_faults``,
             ``outputs`` (absolute paths), ``ingest`` (``files``,
             ``rows_inserted``, ``rows_skipped_duplicate``,
-            ``rows_quarantined``, ``errors``) and ``registry_problems``.
+            ``rows_quarantined``, ``errors``, ``quarantined``: one line per
+            file with rows quarantined, with the top reasons) and
+            ``registry_problems``.
         """
         r = self.ingest
         return {"run_id": self.run_id, "status": self.status, "status_note": self.status_note,
@@ -448,6 +450,7 @@ class ScanSummary:
                 "outputs": {k: str(Path(p).resolve()) for k, p in self.outputs.items()},
                 "ingest": {"files": r.files, "rows_inserted": r.rows_inserted,
                            "rows_skipped_duplicate": r.rows_skipped_duplicate,
-                           "rows_quarantined": r.rows_quarantined, "errors": list(r.errors)},
+                           "rows_quarantined": r.rows_quarantined, "errors": list(r.errors),
+                           "quarantined": [f.summary() for f in r.quarantined_files]},
                 "registry_problems": list(self.registry_problems)}
 

@@ -3,6 +3,7 @@ Ingest of historian exports into the store: each file read once, no sample ever 
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
 import os
@@ -28,9 +29,23 @@ from ..io.exports import (
 )
 from ..plain import first_line, one_line
 
-__all__ = ["ingest_exports", "IngestReport", "FileIngest"]
+__all__ = ["ingest_exports", "IngestReport", "FileIngest", "FIXABLE_REASONS", "reason_kind"]
 
 _log = logging.getLogger(__name__)
+
+
+#: Quarantine reasons (their start) that a setting fixes: a re-run with it
+#: recovers the rows, so such a file is not recorded as read.
+FIXABLE_REASONS = ("timestamp has no UTC offset and no time zone is configured",)
+
+
+def reason_kind(reason: pl.Expr) -> pl.Expr:
+    """A quarantine reason without the values it quotes (``'…'``) and without
+    its trailing parenthesis naming a tag or line: rows quarantined for the
+    same cause share it."""
+    return (reason.str.replace_all(r"'[^']*'", "'…'")
+            .str.replace(r" \((tag|kept line|already stored)[^)]*\)$", "")
+            .str.replace(r" \(tag [^)]*\)$", ""))
 
 
 @dataclass(frozen=True)
@@ -55,6 +70,9 @@ class FileIngest:
         One-line error when the file could not be read at all.
     notes : tuple of str
         One-line remarks (time running backwards, encoding, ...).
+    reasons : tuple of (str, int)
+        Why rows were quarantined: each kind of reason (quoted values
+        replaced by ``'…'``) and its count, most frequent first.
     """
 
     path: str
@@ -65,6 +83,32 @@ class FileIngest:
     unchanged: bool = False
     error: str | None = None
     notes: tuple[str, ...] = ()
+    reasons: tuple[tuple[str, int], ...] = ()
+
+    @property
+    def fixable(self) -> int:
+        """Rows quarantined for a cause the user can fix by a setting
+        (:data:`FIXABLE_REASONS`: a time zone for naive time stamps)."""
+        return sum(n for r, n in self.reasons if r.startswith(FIXABLE_REASONS))
+
+    def summary(self) -> str:
+        """One line: the file, its rows read, stored and quarantined, and the
+        top reasons."""
+        text = (f"{self.path}: {self.rows_read:,} rows read, {self.rows_inserted:,} stored, "
+                f"{self.rows_skipped_duplicate:,} already stored, {self.rows_quarantined:,} "
+                f"quarantined")
+        if self.reasons:
+            text += " (" + "; ".join(f"{n:,} {r}" for r, n in self.reasons[:3]) + ")"
+        return text
+
+    def as_dict(self) -> dict:
+        """Plain counts for ``verdicts.json`` and the flow's summary."""
+        return {"file": self.path, "rows_read": self.rows_read,
+                "rows_stored": self.rows_inserted,
+                "rows_already_stored": self.rows_skipped_duplicate,
+                "rows_quarantined": self.rows_quarantined,
+                "quarantine_reasons": [{"reason": r, "rows": n} for r, n in self.reasons],
+                "error": self.error}
 
 
 @dataclass(frozen=True)
@@ -101,15 +145,26 @@ class IngestReport:
 
     @property
     def incomplete(self) -> tuple[str, ...]:
-        """One line per export whose samples did not reach the store: the
-        file (or pattern) failed (:attr:`errors`), or it had rows and every
-        one was quarantined. Each names the file."""
-        empty = tuple(f"{r.path}: all {r.rows_quarantined:,} rows were quarantined, none "
-                      f"stored (their reasons are in the store's quarantine table)"
-                      for r in self.per_file
-                      if r.error is None and not r.unchanged and r.rows_quarantined > 0
-                      and r.rows_inserted + r.rows_skipped_duplicate == 0)
-        return tuple(self.errors) + empty
+        """One line per export whose samples did not all reach the store:
+        the file (or pattern) failed (:attr:`errors`), it had rows and every
+        one was quarantined, or rows were quarantined for a cause a setting
+        fixes (:attr:`FileIngest.fixable`). Each names the file."""
+        out = list(self.errors)
+        for r in self.per_file:
+            if r.error is not None or r.unchanged or not r.rows_quarantined:
+                continue
+            if r.rows_inserted + r.rows_skipped_duplicate == 0:
+                out.append(f"{r.path}: all {r.rows_quarantined:,} rows were quarantined, none "
+                           f"stored ({r.reasons[0][0] if r.reasons else 'see the quarantine'})")
+            elif r.fixable:
+                out.append(f"{r.path}: {r.fixable:,} rows quarantined for a cause a setting "
+                           f"fixes ({r.reasons[0][0]}); the file is read again next time")
+        return tuple(out)
+
+    @property
+    def quarantined_files(self) -> tuple[FileIngest, ...]:
+        """The files read this time that had rows quarantined."""
+        return tuple(r for r in self.per_file if r.rows_quarantined and not r.unchanged)
 
     @property
     def usable(self) -> bool:
@@ -201,24 +256,33 @@ def _ingest_one(store, path: str, timezone: str | None, force: bool, chunk_rows:
                           notes=(f"{path}: already ingested (same SHA-256); skipped",))
     read = inserted = duplicates = quarantined = 0
     notes: list[str] = []
+    reasons: collections.Counter = collections.Counter()
     # the next slice is parsed (polars) while this one is written (DuckDB): both release the GIL
     for parsed in _prefetched(iter_export(path, timezone=timezone, chunk_rows=chunk_rows)):
         # one transaction per slice: DuckDB keeps uncommitted rows in memory
         with store.transaction():
-            ins, dup, qua = _write_parsed(store, parsed)
+            ins, dup, qua = _write_parsed(store, parsed, reasons)
         read += parsed.samples.height
         inserted, duplicates, quarantined = inserted + ins, duplicates + dup, quarantined + qua
         notes.extend(parsed.notes)
-    # recorded last: a file interrupted midway is not "known" and is read again next time
-    store.record_ingested_file(path, sha, rows=read, rows_inserted=inserted,
-                               duplicates=duplicates, quarantined=quarantined)
-    return FileIngest(path, rows_read=read, rows_inserted=inserted,
-                      rows_skipped_duplicate=duplicates, rows_quarantined=quarantined,
-                      notes=tuple(notes))
+    res = FileIngest(path, rows_read=read, rows_inserted=inserted,
+                     rows_skipped_duplicate=duplicates, rows_quarantined=quarantined,
+                     notes=tuple(notes), reasons=tuple(reasons.most_common()))
+    # recorded last: a file interrupted midway is not "known" and is read again next time;
+    # so is one with rows quarantined for a cause a setting fixes (a time zone): after the
+    # fix, the next run recovers them (the rows stored already are duplicates then)
+    if not res.fixable:
+        store.record_ingested_file(path, sha, rows=read, rows_inserted=inserted,
+                                   duplicates=duplicates, quarantined=quarantined)
+    return res
 
 
-def _write_parsed(store, parsed: ParsedExport) -> tuple[int, int, int]:
+def _write_parsed(store, parsed: ParsedExport, reasons: collections.Counter | None = None
+                  ) -> tuple[int, int, int]:
     """Write one parsed slice; return (inserted, duplicates, quarantined).
+
+    ``reasons`` (when given) counts the quarantined rows by kind of reason
+    (:func:`reason_kind`).
 
     Samples whose (tag, ts) is already stored (by an earlier file or slice)
     are duplicates when value and status agree, else quarantined: the stored
@@ -261,6 +325,9 @@ def _write_parsed(store, parsed: ParsedExport) -> tuple[int, int, int]:
     inserted = store.insert_new_samples(parsed.samples, may_overlap=overlap)
     quarantine = pl.concat([quarantine, clash_q.cast(QUARANTINE_SCHEMA)])
     store.insert_quarantine(quarantine)
+    if reasons is not None and quarantine.height:
+        kinds = quarantine.select(reason_kind(pl.col("reason")))["reason"].value_counts()
+        reasons.update(dict(zip(kinds["reason"].to_list(), kinds["count"].to_list())))
     # every row of `rows` is inserted, a duplicate or a conflict; a re-judged later row
     # that the slice called a conflict but equals the stored sample is a duplicate now
     duplicates = (parsed.duplicates_dropped + parsed.samples.height - inserted - clash.height
