@@ -323,13 +323,35 @@ def test_naive_local_times_with_zone_and_daylight_saving():
     samples, quarantine = read_export(DATA / "dst_berlin.csv", timezone="Europe/Berlin")
     assert samples.sort("source_line")["ts"].to_list() == [
         utc(2024, 10, 26, 23, 30),   # 01:30 CEST
+        utc(2024, 10, 27, 0, 30),    # 02:30, the overlap's first pass: CEST
         utc(2024, 10, 27, 2, 30),    # 03:30 CET
         utc(2024, 3, 31, 1, 30),     # 03:30 CEST
     ]
     reasons = dict(zip(quarantine["line"], quarantine["reason"]))
-    assert reasons[3].startswith("ambiguous local time (daylight-saving overlap")
     assert reasons[5].startswith("non-existent local time (daylight-saving gap")
-    assert len(reasons) == 2
+    assert len(reasons) == 1
+
+
+@pytest.mark.parametrize("layout", ["long", "wide"])
+def test_a_time_ordered_naive_record_through_the_autumn_change_is_resolved_by_order(
+        tmp_path, layout):
+    # 15 min samples, 01:00 CEST to 03:15 CET: the local hour 02:00-02:59 comes twice,
+    # first in daylight time, then in standard time; each tag's record is in time order
+    local = ["01:00", "01:15", "01:30", "01:45", "02:00", "02:15", "02:30", "02:45",
+             "02:00", "02:15", "02:30", "02:45", "03:00", "03:15"]
+    if layout == "long":
+        text = "tag,time,value\n" + "".join(f"{tag},2024-10-27 {t}:00,{i}\n" for tag in "AB"
+                                            for i, t in enumerate(local))
+    else:
+        text = "time,A,B\n" + "".join(f"2024-10-27 {t}:00,{i},{-i}\n"
+                                      for i, t in enumerate(local))
+    samples, quarantine = read_export(write(tmp_path, "dst.csv", text),
+                                      timezone="Europe/Berlin")
+    assert quarantine.is_empty()
+    for tag in "AB":
+        ts = samples.filter(pl.col("tag") == tag).sort("source_line")["ts"].to_list()
+        assert ts == [utc(2024, 10, 26, 23) + dt.timedelta(minutes=15 * k)
+                      for k in range(len(local))]
 
 
 def test_offset_times_ignore_the_configured_zone(tmp_path):

@@ -29,8 +29,12 @@ Rules that hold for every reader
   ``+0100``, ``+01``) is exact, with ``T`` or a blank between date and time,
   to the minute or the second (with any fraction); mixed offsets in one file
   are fine. Epoch seconds are UTC. A naive local time stamp needs
-  ``timezone``; one that falls into a daylight-saving overlap (ambiguous) or
-  gap (non-existent) is quarantined, never guessed.
+  ``timezone``. One in the daylight-saving overlap (the local hour that
+  comes twice) is resolved by the order of the rows, as historians write
+  them: daylight time until the local clock of the tag's record goes back,
+  standard time after (a file cut into slices inside that hour can put a
+  second-pass row into the first pass; it then clashes with the first and
+  is quarantined). One in the gap (non-existent) is quarantined.
 * Rows whose time runs backwards are kept and sorted; the file's notes say
   where (see :class:`ParsedExport`).
 * Within one file, exact duplicate samples are dropped and counted; a second
@@ -459,15 +463,27 @@ def _parse_time_column(text: pl.Series) -> pl.DataFrame:
     return out
 
 
-def _localise(naive: pl.Expr, timezone: str) -> tuple[pl.Expr, pl.Expr]:
-    """UTC time and a reason for naive local times in ``timezone``."""
-    strict = naive.dt.replace_time_zone(timezone, ambiguous="null", non_existent="null")
-    early = naive.dt.replace_time_zone(timezone, ambiguous="earliest", non_existent="null")
-    reason = (pl.when(naive.is_not_null() & early.is_null())
-              .then(pl.lit(f"non-existent local time (daylight-saving gap in {timezone})"))
-              .when(naive.is_not_null() & strict.is_null())
-              .then(pl.lit(f"ambiguous local time (daylight-saving overlap in {timezone})")))
-    return strict.dt.convert_time_zone("UTC"), reason
+def _localise(naive: pl.Expr, timezone: str, over: str | None = None
+              ) -> tuple[pl.Expr, pl.Expr]:
+    """UTC time and a reason for naive local times in ``timezone``.
+
+    A local time of the daylight-saving overlap (the hour the clock goes
+    back) is resolved by the order of the rows, as historians write them: a
+    time-ordered record passes through that hour twice, first in daylight
+    time, then, once the local clock has gone back, in standard time. A row
+    is of the second pass when an earlier row (of the same ``over`` group, a
+    tag) shows the same or a later local time. A time in the gap (the hour
+    the clock skips) never happened: those rows get a reason.
+    """
+    before = naive.cum_max().forward_fill().shift(1)
+    if over is not None:
+        before = before.over(over)
+    pass_ = pl.when(before.is_not_null() & (before >= naive)).then(pl.lit("latest")) \
+        .otherwise(pl.lit("earliest"))
+    local = naive.dt.replace_time_zone(timezone, ambiguous=pass_, non_existent="null")
+    reason = (pl.when(naive.is_not_null() & local.is_null())
+              .then(pl.lit(f"non-existent local time (daylight-saving gap in {timezone})")))
+    return local.dt.convert_time_zone("UTC"), reason
 
 
 def _resolve_times(frame: pl.DataFrame, col: str, timezone: str | None, path: str,
@@ -514,7 +530,8 @@ def _resolve_times(frame: pl.DataFrame, col: str, timezone: str | None, path: st
     kinds = set(frame["kind"].drop_nulls().unique().to_list())
     if "naive" in kinds:
         if timezone is not None:
-            local_utc, local_reason = _localise(pl.col("naive"), timezone)
+            local_utc, local_reason = _localise(pl.col("naive"), timezone,
+                                                "tag" if "tag" in frame.columns else None)
             frame = frame.with_columns(
                 utc=pl.when(pl.col("kind") == "naive").then(local_utc).otherwise(pl.col("utc")),
                 ts_reason=pl.coalesce(pl.col("ts_reason"), local_reason))
