@@ -697,5 +697,20 @@ def test_rows_quarantined_for_a_missing_time_zone_are_recovered_by_a_rerun_with_
         assert again.per_file[0].unchanged and again.incomplete == ()
         assert store.counts()["samples"] == 3 and store.duplicate_keys() == 0
         line = fixed.summary()
-    assert line.startswith(f"{path}: 3 rows read, 2 stored, 1 already stored, 1 quarantined")
-    assert "non-numeric value" in line and "\n" not in line
+    assert line == (f"{path}: 3 rows read, 2 stored, 1 already stored, 1 quarantined "
+                    f"(1 like: non-numeric value 'x')")
+
+
+def test_a_file_with_most_rows_quarantined_is_named_with_an_example(tmp_path):
+    # quoted decimal commas in a comma-separated export: not numbers here, and the
+    # file must not look read: it is named, with a row's reason as the example
+    path = write(tmp_path, "dc.csv", "tag,timestamp,value\n" + "".join(
+        f'A,2024-01-01T00:00:{i:02d}Z,"{i},5"\n' for i in range(20)) +
+        "A,2024-01-01T00:01:00Z,3.5\n")
+    with Store(tmp_path / "s.duckdb") as store:
+        report = ingest_exports(store, [path])
+    assert report.incomplete == (f"{path}: 20 of 21 rows quarantined (e.g. non-numeric value "
+                                 f"'0,5')",)
+    assert report.per_file[0].as_dict()["quarantine_reasons"] == [
+        {"reason": "non-numeric value '…'", "rows": 20,
+         "example": "non-numeric value '0,5'"}]

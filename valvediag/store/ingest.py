@@ -34,6 +34,9 @@ __all__ = ["ingest_exports", "IngestReport", "FileIngest", "FIXABLE_REASONS", "r
 _log = logging.getLogger(__name__)
 
 
+#: Share of a file's rows quarantined above which the run misses a notable part
+#: of it (the run is then partial) [-].
+MOST_QUARANTINED = 0.1
 #: Quarantine reasons (their start) that a setting fixes: a re-run with it
 #: recovers the rows, so such a file is not recorded as read.
 FIXABLE_REASONS = ("timestamp has no UTC offset and no time zone is configured",)
@@ -73,6 +76,9 @@ class FileIngest:
     reasons : tuple of (str, int)
         Why rows were quarantined: each kind of reason (quoted values
         replaced by ``'…'``) and its count, most frequent first.
+    examples : tuple of str
+        For each of ``reasons``, the full reason of its first row (with the
+        value it quotes).
     """
 
     path: str
@@ -84,6 +90,7 @@ class FileIngest:
     error: str | None = None
     notes: tuple[str, ...] = ()
     reasons: tuple[tuple[str, int], ...] = ()
+    examples: tuple[str, ...] = ()
 
     @property
     def fixable(self) -> int:
@@ -98,7 +105,8 @@ class FileIngest:
                 f"{self.rows_skipped_duplicate:,} already stored, {self.rows_quarantined:,} "
                 f"quarantined")
         if self.reasons:
-            text += " (" + "; ".join(f"{n:,} {r}" for r, n in self.reasons[:3]) + ")"
+            text += " (" + "; ".join(f"{n:,} like: {e}" for (_, n), e in
+                                     zip(self.reasons[:3], self.examples)) + ")"
         return text
 
     def as_dict(self) -> dict:
@@ -107,7 +115,8 @@ class FileIngest:
                 "rows_stored": self.rows_inserted,
                 "rows_already_stored": self.rows_skipped_duplicate,
                 "rows_quarantined": self.rows_quarantined,
-                "quarantine_reasons": [{"reason": r, "rows": n} for r, n in self.reasons],
+                "quarantine_reasons": [{"reason": r, "rows": n, "example": e}
+                                       for (r, n), e in zip(self.reasons, self.examples)],
                 "error": self.error}
 
 
@@ -147,18 +156,23 @@ class IngestReport:
     def incomplete(self) -> tuple[str, ...]:
         """One line per export whose samples did not all reach the store:
         the file (or pattern) failed (:attr:`errors`), it had rows and every
-        one was quarantined, or rows were quarantined for a cause a setting
-        fixes (:attr:`FileIngest.fixable`). Each names the file."""
+        one was quarantined, rows were quarantined for a cause a setting
+        fixes (:attr:`FileIngest.fixable`), or more than
+        :data:`MOST_QUARANTINED` of its rows were. Each names the file."""
         out = list(self.errors)
         for r in self.per_file:
             if r.error is not None or r.unchanged or not r.rows_quarantined:
                 continue
             if r.rows_inserted + r.rows_skipped_duplicate == 0:
                 out.append(f"{r.path}: all {r.rows_quarantined:,} rows were quarantined, none "
-                           f"stored ({r.reasons[0][0] if r.reasons else 'see the quarantine'})")
+                           f"stored ({_first_reason(r)})")
             elif r.fixable:
                 out.append(f"{r.path}: {r.fixable:,} rows quarantined for a cause a setting "
                            f"fixes ({r.reasons[0][0]}); the file is read again next time")
+            elif r.rows_quarantined > MOST_QUARANTINED * (r.rows_read + r.rows_quarantined):
+                out.append(f"{r.path}: {r.rows_quarantined:,} of "
+                           f"{r.rows_read + r.rows_quarantined:,} rows quarantined "
+                           f"({_first_reason(r)})")
         return tuple(out)
 
     @property
@@ -257,17 +271,19 @@ def _ingest_one(store, path: str, timezone: str | None, force: bool, chunk_rows:
     read = inserted = duplicates = quarantined = 0
     notes: list[str] = []
     reasons: collections.Counter = collections.Counter()
+    examples: dict[str, str] = {}
     # the next slice is parsed (polars) while this one is written (DuckDB): both release the GIL
     for parsed in _prefetched(iter_export(path, timezone=timezone, chunk_rows=chunk_rows)):
         # one transaction per slice: DuckDB keeps uncommitted rows in memory
         with store.transaction():
-            ins, dup, qua = _write_parsed(store, parsed, reasons)
+            ins, dup, qua = _write_parsed(store, parsed, reasons, examples)
         read += parsed.samples.height
         inserted, duplicates, quarantined = inserted + ins, duplicates + dup, quarantined + qua
         notes.extend(parsed.notes)
     res = FileIngest(path, rows_read=read, rows_inserted=inserted,
                      rows_skipped_duplicate=duplicates, rows_quarantined=quarantined,
-                     notes=tuple(notes), reasons=tuple(reasons.most_common()))
+                     notes=tuple(notes), reasons=tuple(reasons.most_common()),
+                     examples=tuple(examples[k] for k, _ in reasons.most_common()))
     # recorded last: a file interrupted midway is not "known" and is read again next time;
     # so is one with rows quarantined for a cause a setting fixes (a time zone): after the
     # fix, the next run recovers them (the rows stored already are duplicates then)
@@ -277,12 +293,18 @@ def _ingest_one(store, path: str, timezone: str | None, force: bool, chunk_rows:
     return res
 
 
-def _write_parsed(store, parsed: ParsedExport, reasons: collections.Counter | None = None
-                  ) -> tuple[int, int, int]:
+def _first_reason(r: FileIngest) -> str:
+    """The most frequent quarantine reason of a file, by its first example."""
+    return f"e.g. {r.examples[0]}" if r.examples else "see the store's quarantine table"
+
+
+def _write_parsed(store, parsed: ParsedExport, reasons: collections.Counter | None = None,
+                  examples: dict | None = None) -> tuple[int, int, int]:
     """Write one parsed slice; return (inserted, duplicates, quarantined).
 
     ``reasons`` (when given) counts the quarantined rows by kind of reason
-    (:func:`reason_kind`).
+    (:func:`reason_kind`), and ``examples`` keeps the first full reason of
+    each kind.
 
     Samples whose (tag, ts) is already stored (by an earlier file or slice)
     are duplicates when value and status agree, else quarantined: the stored
@@ -326,8 +348,12 @@ def _write_parsed(store, parsed: ParsedExport, reasons: collections.Counter | No
     quarantine = pl.concat([quarantine, clash_q.cast(QUARANTINE_SCHEMA)])
     store.insert_quarantine(quarantine)
     if reasons is not None and quarantine.height:
-        kinds = quarantine.select(reason_kind(pl.col("reason")))["reason"].value_counts()
-        reasons.update(dict(zip(kinds["reason"].to_list(), kinds["count"].to_list())))
+        kinds = quarantine.select("reason", kind=reason_kind(pl.col("reason"))).group_by(
+            "kind", maintain_order=True).agg(pl.len(), pl.first("reason"))
+        for kind, n, first in kinds.iter_rows():
+            reasons[kind] += n
+            if examples is not None:
+                examples.setdefault(kind, first)
     # every row of `rows` is inserted, a duplicate or a conflict; a re-judged later row
     # that the slice called a conflict but equals the stored sample is a duplicate now
     duplicates = (parsed.duplicates_dropped + parsed.samples.height - inserted - clash.height
