@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import socket
 import subprocess
 import sys
 import time
@@ -282,13 +283,19 @@ def temporary_api() -> Iterator[None]:
     once here, with a watchdog process that stops it if this process dies,
     and stopped, with the run's last log lines flushed, at the end.
     """
-    if os.environ.get("PREFECT_API_URL"):
-        yield
-        return
-    from prefect.server.api.server import SubprocessASGIServer
     from prefect.settings import PREFECT_API_URL, temporary_settings
 
-    server = SubprocessASGIServer()
+    if os.environ.get("PREFECT_API_URL") or PREFECT_API_URL.value():
+        yield                       # a server is configured (environment, profile, settings)
+        return
+    from prefect.server.api.server import SubprocessASGIServer
+
+    # a port of its own: Prefect keeps one server object per port, and the one of
+    # port None may be another caller's (stopping it here would stop theirs)
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    server = SubprocessASGIServer(port=port)
     server.start(timeout=180)
     watchdog = subprocess.Popen([sys.executable, "-c", _SERVER_WATCHDOG, str(os.getpid()),
                                  str(server.server_process.pid)], start_new_session=True,

@@ -88,9 +88,9 @@ _SLICED_SCAN = textwrap.dedent("""
     def sliced(path, **kw):
         kw["chunk_rows"] = 400
         return _iter(path, **kw)
-    def write(store, parsed):
+    def write(store, parsed, *counters):
         written.append(parsed.path)
-        return _write(store, parsed)
+        return _write(store, parsed, *counters)
     @contextlib.contextmanager
     def transaction(self):
         before = len(written)
