@@ -111,3 +111,112 @@ def test_the_same_export_uncompressed_parses(tmp_path):
     path = tmp_path / "export.csv"
     path.write_text(LONG)
     assert parse_export(path).samples.height == 1
+
+
+# ------------------------------------------------------------------ through a whole scan
+# Each case changes a small synthetic plant (its exports, its registry or the output path),
+# runs the scan and checks how the run ends: the status in the store, the exception or the
+# summary, and the words that name the problem. Nothing may be duplicated.
+
+def _garbled(d):
+    (d / "exports" / "garbled.csv").write_text("foo,bar\n1,2\n")
+
+
+def _only_garbled(d):
+    for p in (d / "exports").iterdir():
+        p.unlink()
+    _garbled(d)
+
+
+def _naive_rows(d):
+    # naive time stamps among offset ones and no time zone: a setting fixes it
+    (d / "exports" / "naive.csv").write_text(
+        "tag,timestamp,value\nXX.PV,2026-11-01T00:00:00Z,1\nXX.PV,2026-11-01 00:00:05,2\n"
+        "XX.PV,2026-11-01 00:00:10,3\n")
+
+
+def _decimal_commas(d):
+    (d / "exports" / "commas.csv").write_text("tag,timestamp,value\n" + "".join(
+        f'XX.PV,2026-11-01T00:{i // 60:02d}:{i % 60:02d}Z,"{i},5"\n' for i in range(40)))
+
+
+def _gzipped(d):
+    src = sorted((d / "exports").iterdir())[0]
+    _gzip(d / "exports" / "more.csv.gz", src.read_text())
+
+
+def _single_sample_tag(d):
+    (d / "exports" / "single.csv").write_text(
+        "tag,timestamp,value\nXIC9.PV,2026-11-01T01:00:00Z,3.0\n"
+        "XIC9.OP,2026-11-01T00:00:00Z,40\nXIC9.OP,2026-11-01T01:00:00Z,41\n")
+    with open(d / "loops.csv", "a") as fh:
+        fh.write("XIC9,XIC9.PV,XIC9.OP,,,self-regulating,%,100,1,one PV sample\n")
+
+
+def _huge_description(d):
+    with open(d / "loops.csv", "a") as fh:
+        fh.write(f"XIC8,XIC8.PV,XIC8.OP,,,self-regulating,%,100,1,{'x' * 200_000}\n")
+
+
+# (case, change, expected: 'complete' | 'partial' | an exception type, words in the
+#  note or message, (loop, verdict, words in its reason) or None)
+SCANS = [
+    ("one unreadable export", _garbled, "partial", ["garbled.csv"], None),
+    ("every export unreadable", _only_garbled, "NothingStoredError",
+     ["no export reached the store", "garbled.csv"], None),
+    ("naive time stamps without a time zone", _naive_rows, "partial",
+     ["naive.csv", "a cause a setting fixes", "no UTC offset"], None),
+    ("quoted decimal commas", _decimal_commas, "partial",
+     ["commas.csv", "all 40 rows were quarantined", "'0,5'"], None),
+    ("a gzip-compressed export", _gzipped, "partial",
+     ["more.csv.gz", "gzip-compressed"], None),
+    ("a PV tag with a single sample", _single_sample_tag, "complete", [],
+     ("XIC9", "insufficient-data", "has a single valid sample")),
+    ("a description of 200 kB", _huge_description, "complete", [],
+     ("XIC8", "insufficient-data", "not found in the exports")),
+]
+
+
+@pytest.fixture(scope="module")
+def small_plant(tmp_path_factory):
+    from valvediag.synth.plant import synth_plant
+
+    base = tmp_path_factory.mktemp("bad_input_plant")
+    synth_plant(3, 0.03, 5.0, base, seed=1)
+    return base
+
+
+@pytest.mark.system
+@pytest.mark.parametrize("case, change, expect, words, loop", SCANS,
+                         ids=[c[0] for c in SCANS])
+def test_bad_input_through_a_scan(small_plant, tmp_path, case, change, expect, words, loop):
+    import shutil
+
+    from valvediag.scan import run as scan_run
+    from valvediag.store.database import Store
+
+    d = tmp_path / "plant"
+    shutil.copytree(small_plant, d)
+    change(d)
+    db, out = tmp_path / "s.duckdb", tmp_path / "out"
+    if expect in ("complete", "partial"):
+        summary = scan_run.run_scan(d / "exports", d / "loops.csv", db, out)
+        assert summary.status == expect, (summary.status, summary.status_note)
+        text = summary.status_note
+        if loop is not None:
+            name, verdict, why = loop
+            r = next(r for r in summary.results if r.loop == name)
+            assert r.verdict == verdict and why in r.reason, (r.verdict, r.reason)
+        assert (out / "verdicts.json").exists()
+    else:
+        with pytest.raises(getattr(scan_run, expect)) as err:
+            scan_run.run_scan(d / "exports", d / "loops.csv", db, out)
+        text = str(err.value)
+        assert not (out / "verdicts.json").exists()
+    assert "\n" not in text
+    for w in words:
+        assert w in text, (w, text)
+    with Store(db, read_only=True) as s:
+        assert s.runs()["status"].to_list() == [
+            expect if expect in ("complete", "partial") else "failed"]
+        assert s.duplicate_keys() == 0
