@@ -235,14 +235,18 @@ def outputs(ranked: list[LoopResult], out: str, run_id: str, run_info: dict) -> 
 
 @task(name="artifacts", cache_policy=NO_CACHE)
 def artifacts(ranked: list[LoopResult], paths: dict[str, str], run_id: str,
-              new_faults: list[str]) -> None:
-    """A table artifact of the ranked loops and a markdown artifact linking the report."""
+              new_faults: list[str], status: str = "complete",
+              problems: list[str] | None = None) -> None:
+    """A table artifact of the ranked loops and a markdown artifact linking the report
+    (with the run's status and the problems of its input)."""
     rows, caption = ranked_table(ranked, TABLE_ARTIFACT_MAX_ROWS)
     create_table_artifact(key=TABLE_ARTIFACT_KEY, table=rows,
                           description=f"valvediag run {run_id}: {caption}")
     create_markdown_artifact(key=REPORT_ARTIFACT_KEY,
-                             markdown=run_summary_markdown(ranked, paths, run_id, new_faults),
-                             description=f"valvediag report of run {run_id}")
+                             markdown=run_summary_markdown(ranked, paths, run_id, new_faults,
+                                                           status=status,
+                                                           problems=problems or ()),
+                             description=f"valvediag report of run {run_id} ({status})")
 
 
 @task(name="finish-run", retries=2, retry_delay_seconds=5, retry_condition_fn=_transient,
@@ -301,8 +305,10 @@ class FlowSteps(ScanSteps):
     def outputs(self, ranked, out, run_id, info):
         return outputs(quote(ranked), out, run_id, info)
 
-    def publish(self, ranked, paths, run_id, new_faults):
-        artifacts(quote(ranked), paths, run_id, new_faults)
+    def publish(self, ranked, paths, run_id, new_faults, info):
+        artifacts(quote(ranked), paths, run_id, new_faults, info.get("status", "complete"),
+                  list(info.get("ingest_errors", ())) + [
+                      f"rows quarantined: {q}" for q in info.get("ingest_quarantine", ())])
 
     def fail(self, db, run_id, exc):
         get_run_logger().error("run %s failed; marking it failed in %s", run_id, db)

@@ -310,3 +310,16 @@ def test_a_store_with_the_retired_not_integrating_verdict_still_reads(tmp_path):
         earlier = st.history_before("now")
     h = plant_history(now, run_id="now", earlier=earlier)
     assert [p.verdict for p in h.of("FIC1").points] == ["not-integrating", "stiction"]
+
+
+def test_the_run_summary_artifact_says_a_partial_run_and_its_problems(results):
+    from valvediag.report.artifacts import run_summary_markdown
+
+    paths = {"report": "/o/report.html", "work_orders": "/o/wo.csv", "verdicts": "/o/v.json"}
+    complete = run_summary_markdown(results, paths, "run-1", [])
+    assert "partial" not in complete and "Problems with the input" not in complete
+    partial = run_summary_markdown(results, paths, "run-1", [], status="partial",
+                                   problems=["/x/garbled.csv: unknown columns"])
+    assert "**This run is partial**" in partial
+    assert "- /x/garbled.csv: unknown columns" in partial
+    assert partial.index("partial") < partial.index("loops need action")

@@ -42,7 +42,8 @@ def ranked_table(ranked: Sequence[LoopResult], max_rows: int) -> tuple[list[dict
 
 
 def run_summary_markdown(ranked: Sequence[LoopResult], paths: Mapping[str, str], run_id: str,
-                         new_faults: Sequence[str], title: str = "valvediag nightly scan") -> str:
+                         new_faults: Sequence[str], title: str = "valvediag nightly scan", *,
+                         status: str = "complete", problems: Sequence[str] = ()) -> str:
     """A markdown summary of a run: counts per verdict, new faults, the top loops, links.
 
     Parameters
@@ -53,13 +54,21 @@ def run_summary_markdown(ranked: Sequence[LoopResult], paths: Mapping[str, str],
     run_id : str
     new_faults : sequence of str
     title : str
+    status : {'complete', 'partial'}
+        How the run ended; a partial run is said first.
+    problems : sequence of str
+        One line each: exports not stored, files with rows quarantined.
 
     Returns
     -------
     str
     """
     act = [r for r in ranked if r.rank is not None]
-    lines = [f"# {title} {run_id}", "",
+    lines = [f"# {title} {run_id}", ""]
+    if status != "complete":
+        lines += [f"**This run is {status}**: some exports, or some of their rows, did not "
+                  "reach the store (listed below).", ""]
+    lines += [
              f"**{len(act)} of {len(ranked)} loops need action.** "
              f"[Open the report](file://{paths['report']})", "",
              "| verdict | loops |", "|---|---|",
@@ -70,6 +79,8 @@ def run_summary_markdown(ranked: Sequence[LoopResult], paths: Mapping[str, str],
         lines += ["| rank | loop | verdict | confidence |", "|---|---|---|---|",
                   *(f"| {r.rank} | {r.loop} | {r.verdict} | {r.confidence:.2f} |"
                     for r in act[:20]), ""]
+    if problems:
+        lines += ["Problems with the input:", "", *(f"- {p}" for p in problems), ""]
     lines += [f"- report: `{paths['report']}`", f"- work orders: `{paths['work_orders']}`",
               f"- verdicts: `{paths['verdicts']}`"]
     return "\n".join(lines)

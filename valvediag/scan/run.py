@@ -328,8 +328,9 @@ class ScanSteps:
         return write_outputs(ranked, out, run_id=run_id, run_info=info)
 
     def publish(self, ranked: Sequence[LoopResult], paths: dict, run_id: str,
-                new_faults: Sequence[str]) -> None:
-        """Announce the run beyond its output files (here: nothing)."""
+                new_faults: Sequence[str], info: dict) -> None:
+        """Announce the run beyond its output files (here: nothing). ``info`` is
+        :func:`run_info`'s, with the run's ``status``."""
 
     def cleanup(self, db, run_id: str) -> None:
         """Remove what the run left behind (here: nothing)."""
@@ -401,7 +402,7 @@ def execute_scan(exports, loops_csv, db, out_dir, config: ScanConfig = ScanConfi
             info = run_info(db, loops_csv, exports, jobs, config, problems, ingest, new_faults)
             info["status"], info["status_note"] = status, note
             paths = steps.outputs(ranked, out_dir, run_id, info)
-            steps.publish(ranked, paths, run_id, new_faults)
+            steps.publish(ranked, paths, run_id, new_faults, info)
             steps.finish(db, run_id, status, note)
         except BaseException as exc:
             steps.fail(db, run_id, exc)
