@@ -93,15 +93,17 @@ def run_status(ingest: IngestReport) -> tuple[str, str | None]:
     Returns
     -------
     status : {'complete', 'partial'}
-        ``partial`` when an export failed or stored nothing although it had
-        rows (:attr:`IngestReport.incomplete`).
+        ``partial`` when some export's samples did not all reach the store
+        (:attr:`~valvediag.store.ingest.IngestReport.incomplete`: unreadable,
+        every row or more than a tenth quarantined, or rows quarantined for
+        want of a setting).
     note : str or None
         The exports concerned, one line (at most :data:`NOTE_MAX` characters).
     """
     missing = ingest.incomplete
     if not missing:
         return "complete", None
-    note = f"{len(missing)} export(s) not stored: " + "; ".join(missing)
+    note = f"{len(missing)} export(s) not fully stored: " + "; ".join(missing)
     return "partial", note if len(note) <= NOTE_MAX else note[:NOTE_MAX - 1] + "\u2026"
 
 
