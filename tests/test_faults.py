@@ -374,3 +374,20 @@ def test_a_scan_killed_by_sigkill_does_not_leave_its_temporary_server_running(pl
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
+
+
+@pytest.mark.system
+def test_a_failed_scan_prints_one_line_and_no_traceback(prefect_api, tmp_path):
+    # every export unreadable: the run fails; the command says so in one line (the
+    # tracebacks stay in the Prefect API's logs and behind --verbose)
+    (tmp_path / "exports").mkdir()
+    (tmp_path / "exports" / "garbled.csv").write_text("foo,bar\n1,2\n")
+    (tmp_path / "loops.csv").write_text("loop,pv_tag,op_tag\nLIC1,LIC1.PV,LIC1.OP\n")
+    res = _run(["scan", "--exports", str(tmp_path / "exports"), "--loops",
+                str(tmp_path / "loops.csv"), "--db", str(tmp_path / "s.duckdb"), "--out",
+                str(tmp_path / "out")], prefect_api)
+    assert res.returncode == 2, res.stderr
+    lines = [x for x in res.stderr.splitlines() if not x.startswith(("ingesting", "analysing"))]
+    assert "Traceback" not in res.stderr and len(lines) == 1, res.stderr
+    assert lines[0].startswith("valvediag scan: error: the scan failed: no export reached "
+                               "the store: ") and "garbled.csv" in lines[0]

@@ -106,8 +106,9 @@ def register(sub):
     p.add_argument("--json", action="store_true",
                    help="print verdicts.json (every loop, ranked) to stdout instead of a summary")
     p.add_argument("-v", "--verbose", action="store_true",
-                   help="show Prefect's log lines (task runs, warnings) on stderr; by default "
-                        "only errors and the progress display")
+                   help="show Prefect's log lines (task runs, warnings, tracebacks) on stderr; "
+                        "by default only the progress display and one line per warning or "
+                        "error")
     p.set_defaults(func=run)
 
 
@@ -198,9 +199,10 @@ def run(args) -> int:
     # the temporary server's first start creates its database: 20 s (Prefect's
     # default) is too short on a busy machine
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "180")
-    if not args.verbose:   # Prefect's console lines (the API still records them); the
-        # warnings of the run are printed below, once
-        os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "ERROR")
+    if not args.verbose:   # Prefect's console lines, tracebacks included (the API still
+        # records them, and --verbose shows them); the run's warnings and a failure are
+        # printed below, once, in one line each
+        os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "CRITICAL")
     from valvediag.pipelines.nightly import nightly_scan, progress_to
     from valvediag.pipelines.runners import temporary_api
 
