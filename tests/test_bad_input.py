@@ -140,6 +140,11 @@ def _decimal_commas(d):
         f'XX.PV,2026-11-01T00:{i // 60:02d}:{i % 60:02d}Z,"{i},5"\n' for i in range(40)))
 
 
+def _text_values(d):
+    (d / "exports" / "text.csv").write_text("tag,timestamp,value\n" + "".join(
+        f"XX.PV,2026-11-01T00:{i // 60:02d}:{i % 60:02d}Z,v{i}?\n" for i in range(40)))
+
+
 def _gzipped(d):
     src = sorted((d / "exports").iterdir())[0]
     _gzip(d / "exports" / "more.csv.gz", src.read_text())
@@ -166,8 +171,9 @@ SCANS = [
      ["no export reached the store", "garbled.csv"], None),
     ("naive time stamps without a time zone", _naive_rows, "partial",
      ["naive.csv", "a cause a setting fixes", "no UTC offset"], None),
-    ("quoted decimal commas", _decimal_commas, "partial",
-     ["commas.csv", "all 40 rows were quarantined", "'0,5'"], None),
+    ("quoted decimal commas (read as decimals)", _decimal_commas, "complete", [], None),
+    ("text in every value of a file", _text_values, "partial",
+     ["text.csv", "all 40 rows were quarantined", "'v0?'"], None),
     ("a gzip-compressed export", _gzipped, "partial",
      ["more.csv.gz", "gzip-compressed"], None),
     ("a PV tag with a single sample", _single_sample_tag, "complete", [],
@@ -216,6 +222,10 @@ def test_bad_input_through_a_scan(small_plant, tmp_path, case, change, expect, w
     assert "\n" not in text
     for w in words:
         assert w in text, (w, text)
+    if change is _decimal_commas:
+        with Store(db, read_only=True) as s:
+            got = s.fetch_tag("XX.PV")["value"].to_list()
+        assert got == [i + 0.5 for i in range(40)]
     with Store(db, read_only=True) as s:
         assert s.runs()["status"].to_list() == [
             expect if expect in ("complete", "partial") else "failed"]

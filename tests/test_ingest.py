@@ -702,15 +702,29 @@ def test_rows_quarantined_for_a_missing_time_zone_are_recovered_by_a_rerun_with_
 
 
 def test_a_file_with_most_rows_quarantined_is_named_with_an_example(tmp_path):
-    # quoted decimal commas in a comma-separated export: not numbers here, and the
-    # file must not look read: it is named, with a row's reason as the example
+    # text where numbers belong: the file must not look read; it is named, with a
+    # row's reason as the example
     path = write(tmp_path, "dc.csv", "tag,timestamp,value\n" + "".join(
-        f'A,2024-01-01T00:00:{i:02d}Z,"{i},5"\n' for i in range(20)) +
+        f"A,2024-01-01T00:00:{i:02d}Z,v{i}?\n" for i in range(20)) +
         "A,2024-01-01T00:01:00Z,3.5\n")
     with Store(tmp_path / "s.duckdb") as store:
         report = ingest_exports(store, [path])
     assert report.incomplete == (f"{path}: 20 of 21 rows quarantined (e.g. non-numeric value "
-                                 f"'0,5')",)
+                                 f"'v0?')",)
     assert report.per_file[0].as_dict()["quarantine_reasons"] == [
         {"reason": "non-numeric value '…'", "rows": 20,
-         "example": "non-numeric value '0,5'"}]
+         "example": "non-numeric value 'v0?'"}]
+
+
+@pytest.mark.parametrize("values, stored, quarantined", [
+    (['"12,5"', '"0,25"', "3"], [12.5, 0.25, 3.0], []),             # decimal commas
+    (['"1,234"', '"2,500"'], [], ["'1,234'", "'2,500'"]),           # a thousands separator?
+    (['"1,5"', "2.5"], [2.5], ["'1,5'"]),                          # decimal points elsewhere
+])
+def test_quoted_decimal_commas_in_a_comma_separated_export(tmp_path, values, stored,
+                                                           quarantined):
+    text = "tag,timestamp,value\n" + "".join(f"A,2024-01-01T00:00:{i:02d}Z,{v}\n"
+                                             for i, v in enumerate(values))
+    samples, quarantine = read_export(write(tmp_path, "c.csv", text))
+    assert samples.sort("ts")["value"].to_list() == stored
+    assert [r.split(" ", 2)[2] for r in quarantine["reason"].to_list()] == quarantined

@@ -52,7 +52,10 @@ Notes
   :class:`ExportError`; a body line it refuses (a bare CR outside quotes, a
   field longer than its 131072-character limit) is quarantined as malformed.
 * The CSV separator is sniffed from the header (``,``, ``;`` or tab). With
-  ``;`` or tab a decimal comma in values is accepted.
+  ``;`` or tab a decimal comma in values is accepted; in a comma-separated
+  file, quoted values with a decimal comma (``"12,5"``) are read as decimals
+  when the column has no decimal point and not only three digits after its
+  commas (a thousands separator could not be told apart).
 * A file that is not valid UTF-8 is read as Latin-1 (lossless byte mapping) and
   a note says so.
 * Time stamps are stored with microsecond resolution; finer digits are
@@ -551,6 +554,21 @@ def _resolve_times(frame: pl.DataFrame, col: str, timezone: str | None, path: st
 # --------------------------------------------------------------------------
 # values
 # --------------------------------------------------------------------------
+def _decimal_commas(t: pl.Series) -> bool:
+    """Does a value column of a comma-separated file write decimal commas?
+
+    Such values are quoted (``"12,5"``). They are read as decimals when no
+    value of the column uses a decimal point and at least one has other than
+    three digits after its comma: ``"1,234"`` alone could be a thousands
+    separator, and stays quarantined.
+    """
+    comma = t.str.contains(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
+    if not comma.any() or t.str.contains(r"^[+-]?\d*\.\d").any():
+        return False
+    digits = t.filter(comma).str.extract(r",(\d+)").str.len_chars()
+    return bool((digits != 3).any())
+
+
 def _value_frame(text: pl.Series, states: frozenset[str], decimal_comma: bool
                  ) -> pl.DataFrame:
     """Classify a text value column: ``value, state, vreason`` per row.
@@ -560,6 +578,8 @@ def _value_frame(text: pl.Series, states: frozenset[str], decimal_comma: bool
     runs on the distinct non-numeric texts only.
     """
     t = text.str.strip_chars()
+    if not decimal_comma:
+        decimal_comma = _decimal_commas(t)
     num = (t.str.replace(",", ".", literal=True) if decimal_comma else t).cast(
         pl.Float64, strict=False)
     candidates = t.filter(num.is_null()).drop_nulls().unique().to_list()
