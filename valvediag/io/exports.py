@@ -554,18 +554,25 @@ def _resolve_times(frame: pl.DataFrame, col: str, timezone: str | None, path: st
 # --------------------------------------------------------------------------
 # values
 # --------------------------------------------------------------------------
-def _decimal_commas(t: pl.Series) -> bool:
+def _decimal_commas(t: pl.Series, num: pl.Series) -> bool:
     """Does a value column of a comma-separated file write decimal commas?
 
-    Such values are quoted (``"12,5"``). They are read as decimals when no
-    value of the column uses a decimal point and at least one has other than
-    three digits after its comma: ``"1,234"`` alone could be a thousands
-    separator, and stays quarantined.
+    Such values are quoted (``"12,5"``). ``num`` is the column read with
+    decimal points. The commas are read as decimals when no value read has a
+    fractional part (no decimal point in use) and at least one comma value
+    has other than three digits after its comma: ``"1,234"`` alone could be
+    a thousands separator, and stays quarantined. Only the values that did
+    not read as numbers are searched.
     """
-    comma = t.str.contains(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
-    if not comma.any() or t.str.contains(r"^[+-]?\d*\.\d").any():
+    failed = t.filter(num.is_null() & t.is_not_null())
+    comma = failed.str.contains(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
+    if not comma.any():
         return False
-    digits = t.filter(comma).str.extract(r",(\d+)").str.len_chars()
+    read = num.drop_nulls()
+    read = read.filter(read.is_finite())
+    if read.len() and bool((read != read.round()).any()):
+        return False
+    digits = failed.filter(comma).str.extract(r",(\d+)").str.len_chars()
     return bool((digits != 3).any())
 
 
@@ -578,10 +585,10 @@ def _value_frame(text: pl.Series, states: frozenset[str], decimal_comma: bool
     runs on the distinct non-numeric texts only.
     """
     t = text.str.strip_chars()
-    if not decimal_comma:
-        decimal_comma = _decimal_commas(t)
     num = (t.str.replace(",", ".", literal=True) if decimal_comma else t).cast(
         pl.Float64, strict=False)
+    if not decimal_comma and num.null_count() > t.null_count() and _decimal_commas(t, num):
+        num = t.str.replace(",", ".", literal=True).cast(pl.Float64, strict=False)
     candidates = t.filter(num.is_null()).drop_nulls().unique().to_list()
     state_texts = [c for c in candidates if " ".join(c.lower().split()) in states]
     return pl.DataFrame({"t": t, "num": num}).select(
