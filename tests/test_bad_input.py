@@ -158,6 +158,42 @@ def _single_sample_tag(d):
         fh.write("XIC9,XIC9.PV,XIC9.OP,,,self-regulating,%,100,1,one PV sample\n")
 
 
+def _edit_tag_rows(d, tag, edit):
+    """Rewrite the value cell of ``tag``'s rows: ``edit(k, row)`` -> row (k counts them)."""
+    path = next((d / "exports").glob("*.csv"))
+    lines, k = path.read_text().splitlines(), 0
+    for i, line in enumerate(lines):
+        if line.startswith(tag + ","):
+            lines[i], k = edit(k, line.split(",")), k + 1
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _placeholder(d):
+    # one -9999 in the middle of the sticky loop's PV
+    _edit_tag_rows(d, "LIC102.PV", lambda k, f: ",".join(
+        f[:2] + ["-9999"] + f[3:]) if k == 250 else ",".join(f))
+
+
+def _scattered_bad_states(d):
+    # every 20th PV sample of the sticky loop a 'Bad Input' state (5 %)
+    _edit_tag_rows(d, "LIC102.PV", lambda k, f: ",".join(
+        f[:2] + ["Bad Input"] + f[3:]) if k % 20 == 7 else ",".join(f))
+
+
+def _formula_description(d):
+    text = (d / "loops.csv").read_text().replace("Reflux drum D-169 level",
+                                                 "=HYPERLINK(\"http://x\")")
+    (d / "loops.csv").write_text(text)
+
+
+def _missing_export_path(d):
+    (d / "exports_moved").mkdir()           # the share that is not mounted
+
+
+def _out_is_a_file(d):
+    (d / "out_file").write_text("a file where the output directory should go")
+
+
 def _huge_description(d):
     with open(d / "loops.csv", "a") as fh:
         fh.write(f"XIC8,XIC8.PV,XIC8.OP,,,self-regulating,%,100,1,{'x' * 200_000}\n")
@@ -180,6 +216,18 @@ SCANS = [
      ("XIC9", "insufficient-data", "has a single valid sample")),
     ("a description of 200 kB", _huge_description, "complete", [],
      ("XIC8", "insufficient-data", "not found in the exports")),
+    ("one placeholder sample in a sticky valve's PV", _placeholder, "complete", [],
+     ("LIC102", "stiction", "")),
+    ("5 % scattered bad states in a sticky valve's PV", _scattered_bad_states, "complete",
+     [], ("LIC102", "stiction", "")),
+    ("a description that a spreadsheet would run", _formula_description, "complete", [],
+     ("LIC102", "stiction", "")),
+    ("an export path that does not exist", _missing_export_path, "FileNotFoundError",
+     ["no such file or directory"], None),
+    ("an output path that is a file", _out_is_a_file, "OSError",
+     ["cannot write the outputs here"], None),
+    ("the disk fills up during the ingest", None, "NothingStoredError",
+     ["no export reached the store", "No space left on device"], None),
 ]
 
 
@@ -195,7 +243,8 @@ def small_plant(tmp_path_factory):
 @pytest.mark.system
 @pytest.mark.parametrize("case, change, expect, words, loop", SCANS,
                          ids=[c[0] for c in SCANS])
-def test_bad_input_through_a_scan(small_plant, tmp_path, case, change, expect, words, loop):
+def test_bad_input_through_a_scan(small_plant, tmp_path, monkeypatch, case, change, expect,
+                                  words, loop):
     import shutil
 
     from valvediag.scan import run as scan_run
@@ -203,10 +252,24 @@ def test_bad_input_through_a_scan(small_plant, tmp_path, case, change, expect, w
 
     d = tmp_path / "plant"
     shutil.copytree(small_plant, d)
-    change(d)
-    db, out = tmp_path / "s.duckdb", tmp_path / "out"
+    db, out, exports = tmp_path / "s.duckdb", tmp_path / "out", d / "exports"
+    if change is None:                          # a full disk under the store
+        import duckdb
+
+        from valvediag.store.database import Store as _Store
+
+        def full(*args, **kwargs):
+            raise duckdb.IOException('Could not write file "s.duckdb.wal": No space left on '
+                                     'device')
+        monkeypatch.setattr(_Store, "insert_new_samples", full)
+    else:
+        change(d)
+    if change is _missing_export_path:
+        exports = [d / "exports", d / "share" / "exports"]
+    if change is _out_is_a_file:
+        out = d / "out_file" / "out"
     if expect in ("complete", "partial"):
-        summary = scan_run.run_scan(d / "exports", d / "loops.csv", db, out)
+        summary = scan_run.run_scan(exports, d / "loops.csv", db, out)
         assert summary.status == expect, (summary.status, summary.status_note)
         text = summary.status_note
         if loop is not None:
@@ -215,8 +278,10 @@ def test_bad_input_through_a_scan(small_plant, tmp_path, case, change, expect, w
             assert r.verdict == verdict and why in r.reason, (r.verdict, r.reason)
         assert (out / "verdicts.json").exists()
     else:
-        with pytest.raises(getattr(scan_run, expect)) as err:
-            scan_run.run_scan(d / "exports", d / "loops.csv", db, out)
+        exc = getattr(scan_run, expect, None) or getattr(__builtins__, expect, None) or \
+            {"FileNotFoundError": FileNotFoundError, "OSError": OSError}[expect]
+        with pytest.raises(exc) as err:
+            scan_run.run_scan(exports, d / "loops.csv", db, out)
         text = str(err.value)
         assert not (out / "verdicts.json").exists()
     assert "\n" not in text
@@ -226,7 +291,20 @@ def test_bad_input_through_a_scan(small_plant, tmp_path, case, change, expect, w
         with Store(db, read_only=True) as s:
             got = s.fetch_tag("XX.PV")["value"].to_list()
         assert got == [i + 0.5 for i in range(40)]
+    if change is _formula_description:
+        import csv
+
+        with open(out / "work_orders.csv", newline="", encoding="utf-8") as fh:
+            row = next(r for r in csv.DictReader(fh) if r["loop"] == "LIC102")
+        assert row["description"] == "'=HYPERLINK(\"http://x\")"
+    if not db.exists():                 # stopped before the store was made
+        return
     with Store(db, read_only=True) as s:
-        assert s.runs()["status"].to_list() == [
-            expect if expect in ("complete", "partial") else "failed"]
+        runs = s.runs()["status"].to_list()
         assert s.duplicate_keys() == 0
+    if expect in ("complete", "partial"):
+        assert runs == [expect]
+    elif expect == "NothingStoredError":
+        assert runs == ["failed"]
+    else:                               # stopped before the run was planned
+        assert runs == []

@@ -300,8 +300,12 @@ bad_value_text = st.one_of(st.sampled_from(BAD_VALUES), junk_words)
 
 
 def bad_value_for(sep: str):
-    """Non-numeric value texts; with ``;``/tab a decimal comma is a number, so "1,5" is not."""
-    return bad_value_text.map(lambda v: f"1{sep}5" if sep != "," and v == "1,5" else v)
+    """Non-numeric value texts. With ``;``/tab a decimal comma is a number, so "1,5" is
+    not; with ``,`` a quoted "1,5" is a decimal comma where the column has no decimal
+    point, so the comma case is "1,234", which could be a thousands separator and is
+    always quarantined."""
+    return bad_value_text.map(lambda v: v if v != "1,5" else "1,234" if sep == "," else
+                              f"1{sep}5")
 
 
 tag_chars = st.characters(categories=("L", "N"), include_characters=".-_/:#\u00b0\u00b5,;'\"")

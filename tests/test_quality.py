@@ -176,3 +176,22 @@ def test_frozen_manual_loop_is_held_not_saturated():
     assert not any("saturated" in i for i in q.issues)
     assert any(i.startswith("OP held constant for 100.0% of the time") for i in q.issues)
     assert any("PV frozen" in i for i in q.issues)
+
+
+def test_short_breaks_are_bridged_and_long_ones_kept():
+    from valvediag.analysis.quality import bridge_short_breaks
+
+    t, pv, op = clean_loop()
+    pv = pv.copy()
+    pv[100::20] = np.nan                    # a bad state every 20 samples (5 %)
+    pv[2000:2010] = np.nan                  # and one stretch of ten
+    aligned = align_loop({"pv": frame(t, pv), "op": frame(t, op)})
+    assert max(b - a for a, b in aligned.segments) < 1800
+    joined, samples = bridge_short_breaks(aligned)
+    assert joined.segments == ((0, 2000), (2010, N))
+    assert samples == np.isnan(pv).sum() - 10
+    k = 120                                 # a bridged sample lies on the line
+    assert joined.pv[k] == pytest.approx(0.5 * (pv[k - 1] + pv[k + 1]))
+    assert np.isnan(joined.pv[2000:2010]).all()
+    assert np.array_equal(joined.op, aligned.op)
+    assert bridge_short_breaks(joined) == (joined, 0)

@@ -120,7 +120,8 @@ def test_conflicting_episodes_lower_the_confidence():
     first = t < 9000
     pv = np.where(first, spv, sine)
     op = np.where(first, sop, sop2)
-    pv[9000] = np.nan                      # a bad state splits the two stretches
+    pv[9000:9010] = np.nan                 # bad states split the two stretches (a single
+    #                                        bad sample would be bridged)
     r = analyse_loop(job_for(SPEC, t.size), {"pv": frame(t, pv), "op": frame(t, op)})
     verdicts = [e.verdict for e in r.episodes]
     assert verdicts == ["stiction", "linear-oscillation"]

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+import dataclasses
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -40,6 +41,7 @@ import polars as pl
 from .align import AlignedLoop, contiguous_segments, to_epoch_us
 
 __all__ = ["DataQuality", "quality_metrics", "white_noise_std", "despike", "bridge_short_gaps",
+           "bridge_short_breaks",
            "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
 
 #: Mode texts meaning "the controller is not closing the loop".
@@ -515,3 +517,51 @@ def bridge_short_gaps(x, max_len: int = BRIDGE_SAMPLES) -> tuple[np.ndarray, int
     good = ~bad
     y[fill] = np.interp(np.flatnonzero(fill), np.flatnonzero(good), y[good])
     return y, int(fill.sum())
+
+
+def bridge_short_breaks(aligned: AlignedLoop, max_len: int = BRIDGE_SAMPLES
+                        ) -> tuple[AlignedLoop, int]:
+    """Join the stretches of a loop's record that short breaks separate.
+
+    Parameters
+    ----------
+    aligned : AlignedLoop
+    max_len : int
+        Longest break bridged [samples].
+
+    Returns
+    -------
+    bridged : AlignedLoop
+        PV, OP and MV with each break of at most ``max_len`` invalid samples
+        between two valid ones filled by a straight line
+        (:func:`bridge_short_gaps`), and the segments joined; the original
+        when there is none.
+    samples : int
+        Grid samples made valid.
+
+    Notes
+    -----
+    Scattered bad samples (a historian's ``Bad Input`` now and then, one in
+    twenty say) cut a record into stretches too short to analyse, though
+    each break is shorter than anything a valve does. Longer breaks (a
+    stretch of bad states, a gap in the export) are left alone. The
+    record's data quality is measured before this, on what was recorded.
+    """
+    segs = aligned.segments
+    breaks = [(b, a) for (_, b), (a, _) in zip(segs, segs[1:]) if a - b <= max_len]
+    if not breaks:
+        return aligned, 0
+    arrays = {}
+    for name in ("pv", "op", "mv"):
+        x = getattr(aligned, name)
+        if x is not None:
+            y = np.array(x, dtype=float)
+            for b, a in breaks:     # from the last valid sample before to the first after
+                y[b - 1:a + 1] = bridge_short_gaps(y[b - 1:a + 1], max_len)[0]
+            arrays[name] = y
+    valid = aligned.valid.copy()
+    for b, a in breaks:
+        valid[b:a] = np.isfinite(arrays["pv"][b:a]) & np.isfinite(arrays["op"][b:a])
+    out = dataclasses.replace(aligned, **arrays, valid=valid,
+                              segments=contiguous_segments(valid))
+    return out, int(valid.sum() - aligned.valid.sum())

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..analysis.align import AlignedLoop, align_loop, median_spacing, to_epoch_us
 from ..analysis.classify import LoopDiagnosis, classify_loop
-from ..analysis.quality import DataQuality, quality_metrics
+from ..analysis.quality import DataQuality, bridge_short_breaks, quality_metrics
 from ..io.registry import LoopSpec
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -536,12 +536,15 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                          max_gap=config.max_gap_s)
     q = quality_metrics(aligned, roles, span=spec.span)
     qd = to_plain(q.as_dict())
+    # scattered bad samples must not cut the record into stretches too short to use
+    aligned, breaks_bridged = bridge_short_breaks(aligned)
     window_s = (job.end - job.start).total_seconds()
     h = aligned.sample_time
     min_len = max(MIN_SEGMENT_SAMPLES, int(math.ceil(MIN_SEGMENT_S / h)))
     segs = [(a, b) for a, b in aligned.segments if b - a >= min_len]
     usable_s = sum(b - a for a, b in segs) * h
     ev: dict = {"problems": list(job.problems), "sample_time_s": h, "segments": len(segs),
+                "breaks_bridged": breaks_bridged,
                 "usable_s": usable_s, "coverage": usable_s / window_s if window_s else 0.0}
     if not segs:
         issues = "; ".join(q.issues) or "no overlap of valid PV and OP samples"
