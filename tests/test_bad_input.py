@@ -28,6 +28,21 @@ def _zip(path, text):
         z.writestr("export.csv", text)
 
 
+def _one_line_error(reader, error, path, content, words):
+    """Write ``content`` (text, a writer, or None for no file) to ``path``; ``reader``
+    must raise ``error``, one line naming the file and holding each of ``words``."""
+    if callable(content):
+        content(path)
+    elif content is not None:
+        path.write_text(content)
+    with pytest.raises(error) as err:
+        reader(path)
+    msg = str(err.value)
+    assert "\n" not in msg and str(path) in msg, msg
+    for w in words:
+        assert w.lower() in msg.lower(), (w, msg)
+
+
 # (case, file name, content (text, or a writer), words the one-line error holds)
 LOOP_FILES = [
     ("missing file", "absent.csv", None, ["no such file"]),
@@ -53,15 +68,7 @@ LOOP_FILES = [
                          ids=[c[0] for c in LOOP_FILES])
 def test_single_loop_file_errors_are_one_line_naming_file_and_line(tmp_path, case, name,
                                                                    content, words):
-    path = tmp_path / name
-    if content is not None:
-        path.write_text(content)
-    with pytest.raises(LoopFileError) as err:
-        read_loop_csv(path)
-    msg = str(err.value)
-    assert "\n" not in msg and str(path) in msg, msg
-    for w in words:
-        assert w in msg, (w, msg)
+    _one_line_error(read_loop_csv, LoopFileError, tmp_path / name, content, words)
 
 
 def test_a_good_single_loop_file_reads():
@@ -93,17 +100,7 @@ EXPORTS = [
 
 @pytest.mark.parametrize("case, name, content, words", EXPORTS, ids=[c[0] for c in EXPORTS])
 def test_export_errors_are_one_line_naming_the_file(tmp_path, case, name, content, words):
-    path = tmp_path / name
-    if callable(content):
-        content(path)
-    elif content is not None:
-        path.write_text(content)
-    with pytest.raises(ExportError) as err:
-        parse_export(path)
-    msg = str(err.value)
-    assert "\n" not in msg and str(path) in msg, msg
-    for w in words:
-        assert w.lower() in msg.lower(), (w, msg)
+    _one_line_error(parse_export, ExportError, tmp_path / name, content, words)
 
 
 def test_the_same_export_uncompressed_parses(tmp_path):
