@@ -47,8 +47,7 @@ def reason_kind(reason: pl.Expr) -> pl.Expr:
     its trailing parenthesis naming a tag or line: rows quarantined for the
     same cause share it."""
     return (reason.str.replace_all(r"'[^']*'", "'…'")
-            .str.replace(r" \((tag|kept line|already stored)[^)]*\)$", "")
-            .str.replace(r" \(tag [^)]*\)$", ""))
+            .str.replace(r" \((tag|kept line|already stored)[^)]*\)$", ""))
 
 
 @dataclass(frozen=True)
@@ -167,8 +166,9 @@ class IngestReport:
                 out.append(f"{r.path}: all {r.rows_quarantined:,} rows were quarantined, none "
                            f"stored ({_first_reason(r)})")
             elif r.fixable:
+                why = next(k for k, _ in r.reasons if k.startswith(FIXABLE_REASONS))
                 out.append(f"{r.path}: {r.fixable:,} rows quarantined for a cause a setting "
-                           f"fixes ({r.reasons[0][0]}); the file is read again next time")
+                           f"fixes ({why}); the file is read again next time")
             elif r.rows_quarantined > MOST_QUARANTINED * (r.rows_read + r.rows_quarantined):
                 out.append(f"{r.path}: {r.rows_quarantined:,} of "
                            f"{r.rows_read + r.rows_quarantined:,} rows quarantined "
