@@ -284,6 +284,33 @@ def test_estimate_valve_size_backlash_and_stiction():
     assert out["valve_model"] == "kano"
 
 
+def test_a_compressed_op_is_rebuilt_from_the_controller_law():
+    from valvediag.synth.plant import exception_deadband
+    from valvediag.workbench.data import rebuild_compressed_op, stored_points
+
+    sim = _sim(noise_std=0.01)
+    pv, op = sim.pv[600:], sim.op[600:]
+    t = np.arange(op.size, dtype=float)
+    kept = np.flatnonzero(exception_deadband(op, 0.15))     # the historian's exception
+    stored = np.interp(t, kept, op[kept])                  # read back by interpolation
+    rebuilt, r2 = rebuild_compressed_op(pv, stored, 1.0)
+    assert r2 > 0.9
+    np.testing.assert_array_equal(rebuilt[stored_points(stored)], stored[stored_points(stored)])
+    err_line = np.sqrt(np.mean((stored - op) ** 2))
+    err_rebuilt = np.sqrt(np.mean((rebuilt - op) ** 2))
+    assert err_rebuilt < err_line / 3, (err_rebuilt, err_line)
+    # every sample stored, or gaps: nothing to rebuild
+    same, r2 = rebuild_compressed_op(pv, op, 1.0)
+    assert same is not None and np.array_equal(same, op) and math.isnan(r2)
+    gappy = stored.copy()
+    gappy[100] = np.nan
+    assert math.isnan(rebuild_compressed_op(pv, gappy, 1.0)[1])
+    # the size fit rebuilds it and says so
+    out = estimate_valve_size(pv, stored, 1.0, "backlash")
+    assert "rebuilt between its stored points" in out["reason"]
+    assert out["DB"] == pytest.approx(3.0, rel=0.15)
+
+
 def test_estimate_valve_size_bad_data_and_bad_fault():
     out = estimate_valve_size(np.zeros(500), np.full(500, 30.0), 1.0, "stiction")
     assert math.isnan(out["S"]) and out["confidence"] == 0.0 and "never moves" in out["reason"]

@@ -9,6 +9,7 @@ training (fit) and held-out (score). The record is never resampled.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,7 +17,8 @@ import numpy as np
 from ..analysis.quality import despike, white_noise_std
 from .kernels import nudge_holds, turning_points
 
-__all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "white_noise_std"]
+__all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "white_noise_std",
+           "rebuild_compressed_op", "stored_points"]
 
 #: Fewest segments a record must give (training plus held-out).
 MIN_SEGMENTS = 6
@@ -229,8 +231,104 @@ def shade_heldout(ax, data: LoopData):
         ax.axvspan(data.t[a], data.t[b - 1], color="0.9", lw=0, zorder=0)
 
 
+def stored_points(x) -> np.ndarray:
+    """Indices of the samples a historian stored, for a record read back by
+    linear interpolation: the ends and every sample off the straight line
+    between its neighbours (a kink of the piecewise-linear record).
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+
+    Returns
+    -------
+    numpy.ndarray of int
+    """
+    x = np.asarray(x, dtype=float)
+    if x.size < 3:
+        return np.arange(x.size)
+    tiny = 1e-9 * max(float(np.nanmax(np.abs(x))), 1.0)
+    kinks = np.flatnonzero(np.abs(np.diff(x, 2)) > tiny) + 1
+    return np.unique(np.r_[0, kinks, x.size - 1])
+
+
+def rebuild_compressed_op(pv, op, sample_time: float, sp=None) -> tuple[np.ndarray, float]:
+    """The controller output between the points a historian stored, from the
+    controller's law.
+
+    Parameters
+    ----------
+    pv, op : array_like, shape (n,)
+        Uniformly sampled, gap-free; ``op`` read back by linear interpolation
+        between its stored points [PV unit, OP unit].
+    sample_time : float
+        [s]
+    sp : array_like, shape (n,), optional
+        Set point [PV unit]; constant when not given.
+
+    Returns
+    -------
+    op : numpy.ndarray
+        The OP rebuilt between its stored points (equal to them at each); the
+        input when it cannot be rebuilt.
+    r2 : float
+        Share of the variance of the stored OP's moves that the controller's
+        law explains; NaN when the OP is not compressed or has gaps.
+
+    Notes
+    -----
+    Exception reporting stores an OP sample only when it has moved more
+    than a dead band since the last one, and a straight line between stored
+    samples cuts each reversal: it turns too early and too low, so a valve
+    model driven by it moves too early, a fitted dead time takes that up
+    and the valve's band reads small. The OP is what a PI controller made
+    of the control error ``e = SP - PV``, which is recorded: between stored
+    samples ``i`` and ``j``, ``OP_j - OP_i = Kc (e_j - e_i) + Kc/Ti sum(e h)
+    + c (t_j - t_i)``. ``Kc``, ``Kc/Ti`` and ``c`` (a set point that is not
+    recorded) are found by least squares over all stored intervals; the OP
+    is then integrated from each stored sample, and the small mismatch at
+    the next is spread linearly over the interval, so the stored samples are
+    kept exactly.
+
+    It assumes a PI controller (no derivative action, no output filter, no
+    change of mode or tuning) running at the record's sample time or
+    faster. Where the PV is itself compressed, its own reconstruction
+    errors pass into the rebuilt OP. The controller's share of the PV
+    noise is smoothed away where the PV is compressed: read the OP's noise
+    from its stored points (:func:`white_noise_std`), not from the rebuilt
+    OP.
+    """
+    pv = np.asarray(pv, dtype=float)
+    op = np.asarray(op, dtype=float)
+    if not (np.isfinite(pv).all() and np.isfinite(op).all()) or op.size < 8:
+        return op, math.nan
+    k = stored_points(op)
+    if k.size > 0.7 * op.size or k.size < 8:
+        return op, math.nan
+    e = (np.asarray(sp, dtype=float) - pv) if sp is not None else -pv
+    if not np.isfinite(e).all():
+        return op, math.nan
+    h = float(sample_time)
+    ce = np.r_[0.0, np.cumsum(e[1:])] * h           # integral of e up to each sample
+    i, j = k[:-1], k[1:]
+    X = np.column_stack([e[j] - e[i], ce[j] - ce[i], (j - i) * h])
+    y = op[j] - op[i]
+    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+    ss = float(np.sum((y - y.mean()) ** 2))
+    r2 = 1.0 - float(np.sum((y - X @ coef) ** 2)) / ss if ss > 0 else math.nan
+    t = np.arange(op.size)
+    seg = np.clip(np.searchsorted(k, t, side="right") - 1, 0, k.size - 2)
+    a, b = k[seg], k[seg + 1]
+    law = lambda m: coef[0] * (e[m] - e[a]) + coef[1] * (ce[m] - ce[a]) + coef[2] * (m - a) * h
+    frac = (t - a) / np.maximum(b - a, 1)
+    rebuilt = op[a] + law(t) + frac * (op[b] - op[a] - law(b))
+    rebuilt[k] = op[k]
+    return rebuilt, r2
+
+
 def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 9,
-                 band_max=None, name: str = "", reinit: str = "fit") -> LoopData:
+                 band_max=None, name: str = "", op_noise: float | None = None,
+                 reinit: str = "fit") -> LoopData:
     """Prepare a loop record for the workbench.
 
     Parameters
@@ -256,6 +354,10 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
         OP swing between reversals (at most 1.1 times the OP's 1-99 % range).
     name : str
         Label of the record for reports.
+    op_noise : float, optional
+        The OP's white noise [OP unit]; default read from ``op``
+        (:func:`white_noise_std`). Give it for an OP rebuilt between stored
+        points (:func:`rebuild_compressed_op`), whose noise is smoothed.
     reinit : {'fit', 'measured'}
         Start of each segment's prediction: ``'fit'`` (default), the best
         initial state of the segment (one nuisance value per segment, also
@@ -316,7 +418,7 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     if not rng > 0:
         raise WorkbenchDataError("the OP never moves: nothing to explain the PV with")
     dop = np.diff(op[oko])
-    noise = white_noise_std(op_raw)
+    noise = white_noise_std(op_raw) if op_noise is None else float(op_noise)
     delta = max(0.05 * rng, 4.0 * noise)
     idx, sgn, conf = turning_points(op, delta)
     # the first extreme only fixes the direction: the start of the record
