@@ -275,8 +275,8 @@ def test_bad_input_through_a_scan(small_plant, tmp_path, monkeypatch, case, chan
             assert r.verdict == verdict and why in r.reason, (r.verdict, r.reason)
         assert (out / "verdicts.json").exists()
     else:
-        exc = getattr(scan_run, expect, None) or getattr(__builtins__, expect, None) or \
-            {"FileNotFoundError": FileNotFoundError, "OSError": OSError}[expect]
+        exc = {"FileNotFoundError": FileNotFoundError, "OSError": OSError,
+               "NothingStoredError": scan_run.NothingStoredError}[expect]
         with pytest.raises(exc) as err:
             scan_run.run_scan(exports, d / "loops.csv", db, out)
         text = str(err.value)

@@ -13,6 +13,7 @@ UTC) or a number of seconds. Other column names are mapped with ``columns``.
 """
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -97,8 +98,6 @@ def _ragged_line(path: Path) -> str | None:
     """``'line N has K fields, the header M'`` for the first row whose field
     count differs from the header's, or None (the file is not ragged, or
     cannot be read as text)."""
-    import csv
-
     try:
         with open(path, newline="", encoding="utf-8", errors="replace") as fh:
             rows = csv.reader(fh)
