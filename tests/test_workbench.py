@@ -144,15 +144,19 @@ def test_stiction_kano_recovered_and_bias_jointly():
     assert fit.derived["valve_model"] == "kano"
 
 
-def test_self_regulating_plant():
+@pytest.mark.parametrize("offset, scale", [(0.0, 1.0), (50.0, 3.0)], ids=["plain", "shifted"])
+def test_self_regulating_plant(offset, scale):
+    """Also with PV and OP at an operating point (offset 50, scaled by 3):
+    the same fit in the new units."""
     rng = np.random.default_rng(3)
     sim = _sim(process="self-regulating", process_gain=1.5, tau=30.0, kc=1.3, ti=20.0,
                valve="kano", valve_params={"S": 3.0, "J": 1.0}, duration=3 * 3600)
     pv = sim.pv + 0.01 * rng.standard_normal(sim.pv.size)
-    fit = LoopModel(("stiction",), "self-regulating").fit(prepare_loop(pv, sim.op, 1.0))
+    data = prepare_loop(offset + scale * pv, offset + scale * sim.op, 1.0)
+    fit = LoopModel(("stiction",), "self-regulating").fit(data)
     assert fit.params["gain"] == pytest.approx(1.5, rel=0.05)
     assert fit.params["tau"] == pytest.approx(30.0, rel=0.1)
-    assert fit.params["S"] == pytest.approx(3.0, rel=0.05)
+    assert fit.params["S"] == pytest.approx(3.0 * scale, rel=0.05)
     assert fit.fit_pct > 90
 
 
@@ -181,7 +185,10 @@ def test_effect_names_and_units():
     assert check_effects("dead_time, deadband") == ("deadband", "dead_time")
     with pytest.raises(ValueError, match="unknown effect"):
         check_effects(("deadband", "friction"))
-    assert LoopModel(("deadband", "stiction")).effects == ("stiction",)
+    # the operating point ('bias') is part of every model
+    assert LoopModel(("deadband", "stiction")).effects == ("stiction", "bias")
+    assert LoopModel(("deadband", "stiction")).name == "stiction"
+    assert "bias" not in LoopModel(()).candidates()
     for e in EFFECTS.values():
         for p in e.params:
             assert p.unit and p.bounds and p.kind in ("searched", "linear")

@@ -58,7 +58,7 @@ def test_diagnose_json_shape(capsys, loop_csv):
     doc = json.loads(out)
     assert set(doc) == {"base", "suggestions"}
     assert set(doc["base"]) == {"effects", "params", "fit_pct", "heldout_rmse", "bic"}
-    assert doc["base"]["effects"] == ["deadband"]
+    assert doc["base"]["effects"] == ["deadband", "bias"]
     assert doc["suggestions"], "no suggestions"
     for s in doc["suggestions"]:
         assert set(s) == {"effect", "params", "fit_pct", "heldout_rmse", "bic", "evidence"}
@@ -69,7 +69,7 @@ def test_diagnose_json_shape(capsys, loop_csv):
     assert rmse[0] == min(rmse)
     # default start: the plant alone
     rc, out, _ = _run(capsys, "model", "diagnose", str(loop_csv), "--json")
-    assert json.loads(out)["base"]["effects"] == []
+    assert json.loads(out)["base"]["effects"] == ["bias"]     # the operating point
 
 
 def test_fit_text_and_json(capsys, loop_csv):

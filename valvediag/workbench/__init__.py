@@ -7,7 +7,7 @@ The loop model is a chain of named, swappable effects (as pvlib's
 ``ModelChain``), driven by the measured OP and predicting the PV::
 
     OP -> valve (deadband | stiction, saturation) -> dead_time -> lag
-       -> plant input minus load (bias, drift) -> plant (integrating or
+       -> plant input minus load (operating point, drift) -> plant (integrating or
           self-regulating) -> PV
 
 Typical use, here on a simulated loop with a loose valve (dead band 3) and a
@@ -26,17 +26,17 @@ dead time of 10 s that the first model lacks::
     >>> sug = suggest_effects(fit)                      # which effect is missing
     >>> print(sug.table()); sug.best.effect
     model         fit %  held-out RMSE       BIC  evidence
-    deadband       97.0       0.008979  -17002.6  (base)
-    + dead_time    98.3       0.005045  -19392.3  accepted; residual-OP cross-correlation ...
-    + lag          98.3       0.005083  -19334.4  accepted; residual vs OP rate ...
+    deadband       97.0       0.008926  -17013.3  (base)
+    + dead_time    98.3       0.005055  -19385.7  accepted; residual-OP cross-correlation ...
+    + lag          98.3       0.005097  -19328.1  accepted; residual vs OP rate ...
     ...
     'dead_time'
     >>> ladder = forward_select(data, ("deadband",))    # add, refit, repeat
     >>> ladder.plot(); print(ladder.table())
     <Axes: title={'center': 'error ladder'}, ylabel='held-out RMSE [PV]'>
     step model               k  fit %  held-out RMSE       BIC  parameters
-    0    deadband            2   97.0       0.008979  -17002.6  gain=0.03201, DB=3.817
-    1    deadband+dead_time  3   98.3       0.005045  -19392.3  gain=0.01667, DB=3, dead_time=9.983
+    0    deadband            3   97.0       0.008926  -17013.3  gain=0.03189, DB=3.814, bias=-3.91e-05
+    1    deadband+dead_time  4   98.3       0.005055  -19385.7  gain=0.01667, DB=2.999, dead_time=10, bias=4.608e-06
 
 The PV prediction is a free simulation re-initialised every ``horizon``
 samples (to the best initial state of each segment), fitted on alternating

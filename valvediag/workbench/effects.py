@@ -107,10 +107,13 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "residual correlated with the OP rate at short lags (the model leads the PV)"),
     Effect("bias", "load",
            (Param("bias", "PV unit/s (integrating) or PV unit (self-regulating)", "unbounded",
-                  "linear", "constant rate error of the integrator (leak, offset of the load "
-                  "or of the valve), or PV offset of a self-regulating plant"),),
-           "Constant unmeasured load. On an integrator it is confounded with the Kano "
-           "(S-J)/2 offset, so it is fitted jointly with the valve.",
+                  "linear", "the loop's operating point: -bias/gain is the OP at balance of an "
+                  "integrating plant (a constant load or valve offset moves it), bias the "
+                  "steady-state PV offset of a self-regulating one"),),
+           "Operating point, part of every model (never suggested): real OPs sit at 30-70 % "
+           "and real PVs far from zero, so shifting PV, OP and SP by constants must change no "
+           "fit. On an integrator it is confounded with the Kano (S-J)/2 offset, so it is "
+           "fitted jointly with the valve.",
            "a constant rate error: the residual ramps within every segment"),
     Effect("drift", "load",
            (Param("drift", "PV unit/s^2 (integrating) or PV unit/s (self-regulating)", "unbounded", "linear",

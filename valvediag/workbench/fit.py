@@ -468,17 +468,19 @@ def _best(prob: Problem, cands, current=None):
 
 def _continuous(prob: Problem, theta: Theta):
     """Names, values and initial steps of the continuous searched parameters
-    (transformed: ratios and logarithms)."""
+    (transformed: bands in units of the largest band searched, ratios and
+    logarithms, so that the search takes the same steps whatever the OP's
+    unit)."""
     bm = prob.data.band_max
     names, x0, steps = [], [], []
     if prob.vcode == BACKLASH:
         names.append("DB")
-        x0.append(theta.DB)
-        steps.append(bm / 20)
+        x0.append(theta.DB / bm)
+        steps.append(1 / 20)
     elif prob.vcode in (KANO, HE):
         names += ["S", "Jr"]
-        x0 += [theta.S, theta.J / theta.S if theta.S > 0 else 0.0]
-        steps += [bm / 20, 0.1]
+        x0 += [theta.S / bm, theta.J / theta.S if theta.S > 0 else 0.0]
+        steps += [1 / 20, 0.1]
         if prob.vcode == HE:
             names.append("phase")
             x0.append(theta.phase % 1.0)
@@ -498,13 +500,13 @@ def _continuous(prob: Problem, theta: Theta):
     return names, np.array(x0, dtype=float), np.array(steps, dtype=float)
 
 
-def _from_vector(theta: Theta, names, v, dmax) -> Theta:
+def _from_vector(theta: Theta, names, v, dmax, bm) -> Theta:
     kw = {}
     for nm, val in zip(names, v):
         if nm == "DB":
-            kw["DB"] = max(float(val), 0.0)
+            kw["DB"] = max(float(val), 0.0) * bm
         elif nm == "S":
-            kw["S"] = max(float(val), 0.0)
+            kw["S"] = max(float(val), 0.0) * bm
         elif nm == "Jr":
             kw["Jr"] = min(max(float(val), 0.0), 1.0)      # np.clip, without its overhead
         elif nm == "phase":
@@ -532,7 +534,7 @@ def _refine(prob: Problem, theta: Theta, maxfev: int) -> tuple[Theta, float]:
     cache = {}
 
     def f(v):
-        th = _from_vector(theta, names, v, dmax)
+        th = _from_vector(theta, names, v, dmax, prob.data.band_max)
         if th not in cache:
             cache[th] = float(prob.score([th])[0, 0])
         return cache[th]
@@ -543,7 +545,7 @@ def _refine(prob: Problem, theta: Theta, maxfev: int) -> tuple[Theta, float]:
                                 xatol=1e-3, fatol=0.0))
     fb = f(res.x)
     if fb <= f0:
-        return _from_vector(theta, names, res.x, dmax), fb
+        return _from_vector(theta, names, res.x, dmax, prob.data.band_max), fb
     return theta, f0
 
 
@@ -600,19 +602,30 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
     Notes
     -----
     The grid is searched one stage at a time except that the valve band is
-    crossed with the dead time and with the lag on a coarse joint grid: a
-    longer dead time or lag otherwise passes for a wider band. The local
+    crossed with the dead time, the lag and the plant's time constant on a
+    coarse joint grid: a longer dead time or lag otherwise passes for a
+    wider band, and a time constant searched at the starting band alone can
+    settle where a wrong one, with the operating point (which every model
+    fits) making up for it, fits best. Crossing the time constant costs
+    about 1.6 times the search time on a self-regulating loop. With a warm
+    start the stages run from it and from the cold start: from a smaller
+    model's optimum alone they can stay in its valley (a dead band's fit
+    with a dead time standing in for the slip jump gave a stiction fit
+    with a dead time of 6.5 s for a true 3 s). The local
     step is Nelder-Mead on all continuous parameters jointly; the discrete
     saturation stops are searched on their grid after it.
     """
-    theta = start if start is not None else initial_theta(prob)
+    # the grid's stages run from the cold start and from the warm one: from a
+    # smaller model's optimum alone they can stay in its valley (a dead time
+    # that stood in for a slip jump)
+    origins = [initial_theta(prob)] + ([start] if start is not None else [])
     axes = _grid(prob, coarse=True)
     pool_c, pool_s = [], []
-    if axes:
-        valve_axis = _valve_values(prob, True, joint=True) if prob.vcode != LINEAR else None
+    best_grid = (np.inf, origins[-1])
+    valve_axis = _valve_values(prob, True, joint=True) if prob.vcode != LINEAR else None
+    for theta in origins if axes else ():
         for ax in axes:
-            if valve_axis is not None and ax is not axes[0] and \
-                    any(k in ax[0] for k in ("delay", "lag")):
+            if valve_axis is not None and any(k in ax[0] for k in ("delay", "lag", "tau")):
                 cands = [theta.replace(**a, **v) for a in ax for v in valve_axis]
             else:
                 cands = [theta.replace(**a) for a in ax]
@@ -621,9 +634,12 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
             pool_s += list(sc)
         # one coordinate sweep on the fine grids
         for ax in _grid(prob, coarse=False):
-            theta, _, c, sc = _best(prob, [theta.replace(**a) for a in ax], current=theta)
+            theta, f, c, sc = _best(prob, [theta.replace(**a) for a in ax], current=theta)
             pool_c += c
             pool_s += list(sc)
+            if f < best_grid[0]:
+                best_grid = (f, theta)
+    theta = best_grid[1]
     names, _, _ = _continuous(prob, theta)
     if not names:
         return theta

@@ -17,7 +17,7 @@ integrating process of gain 1/60)::
     >>> data = prepare_loop(pv, op, sample_time=1.0)
     >>> fit = LoopModel(("deadband", "dead_time")).fit(data)
     >>> fit.params, fit.fit_pct, fit.heldout_rmse, fit.bic
-    ({'gain': 0.01667..., 'DB': 2.9999..., 'dead_time': 9.983...}, 98.31..., 0.005045..., -19392.2...)
+    ({'gain': 0.01666..., 'DB': 2.998..., 'dead_time': 10.000..., 'bias': 4.6...e-06}, 98.30..., 0.005054..., -19385.6...)
     >>> fit.plot()                 # measured vs model, held-out blocks shaded
     <Axes: title={'center': 'measured vs model (held-out blocks shaded; ...'}, ...>
     >>> fit.plot_chain()           # OP -> valve -> delayed -> lagged -> input -> PV
@@ -50,7 +50,8 @@ class LoopModel:
         ``'deadband'``, ``'stiction'``, ``'saturation'``, ``'dead_time'``,
         ``'lag'``, ``'bias'``, ``'drift'``; or one comma-separated string.
         ``'stiction'`` replaces ``'deadband'`` (a Kano valve with ``J = 0`` is
-        a dead band of width ``S``).
+        a dead band of width ``S``). ``'bias'``, the loop's operating point,
+        is part of every model whether named or not (see Notes).
     process_type : {'integrating', 'self-regulating'}
         Plant: ``g / s`` (gain ``g = K/tau`` [PV unit / (OP unit s)]) or
         ``K / (tau s + 1)``.
@@ -76,6 +77,15 @@ class LoopModel:
     only the load (which enters after the lag) tells them apart, so read
     them as a pair.
 
+    Every model fits the loop's operating point (the effect ``'bias'``): the
+    OP at balance of an integrating plant, the steady-state offset of a
+    self-regulating one, and any constant load with it. Real OPs sit at
+    30-70 % and real PVs far from zero; a model without it would read the
+    operating point as a missing effect. With it, shifting PV, OP and SP by
+    constants or rescaling them changes no suggestion and no error ratio
+    (the searched bands are relative to the OP's swings, the errors scale
+    with the PV). Its cost is one linear coefficient.
+
     The chain is: OP -> valve (dead band or stiction, then saturation) ->
     dead time (fractional samples interpolate) -> first-order lag -> plant
     input minus load (bias + drift) -> plant -> PV. The load enters after
@@ -99,7 +109,8 @@ class LoopModel:
     drift_knots: int = 3
 
     def __post_init__(self):
-        eff = check_effects(self.effects)
+        # the operating point is part of every model
+        eff = check_effects(tuple(check_effects(self.effects)) + ("bias",))
         if "stiction" in eff and "deadband" in eff:
             eff = tuple(e for e in eff if e != "deadband")
         object.__setattr__(self, "effects", eff)
@@ -110,8 +121,10 @@ class LoopModel:
 
     @property
     def name(self) -> str:
-        """The effects joined by '+', or 'plant only'."""
-        return "+".join(self.effects) if self.effects else "plant only"
+        """The effects joined by '+' (without the operating point, which every
+        model has), or 'plant only'."""
+        named = [e for e in self.effects if e != "bias"]
+        return "+".join(named) if named else "plant only"
 
     def add(self, effect: str) -> "LoopModel":
         """This model with one more effect.

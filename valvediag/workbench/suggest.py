@@ -173,14 +173,10 @@ def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -
         return Evidence(sig, float(r[k]),
                         f"residual vs OP rate cross-correlation {c[pos][k]:+.2f} at lag "
                         f"{lags[pos][k] * h:.0f} s ({r[k] / Z99:.1f} times the 99 % band)")
-    if effect in ("bias", "drift"):
+    if effect == "drift":
         sl, tm = _segment_slopes(fit)
         if sl.size < 3:
             return Evidence(sig, 0.0, "too few segments")
-        if effect == "bias":
-            stat = float(abs(sl.mean()) / (sl.std(ddof=1) / math.sqrt(sl.size))) if sl.std() > 0 else 0.0
-            return Evidence(sig, stat, f"mean rate error {_g(sl.mean())} PV/s over {sl.size} "
-                                       f"segments ({stat:.1f} standard errors)")
         tc = tm - tm.mean()
         b = float(tc @ (sl - sl.mean()) / (tc @ tc))
         res = sl - sl.mean() - b * tc
@@ -399,7 +395,8 @@ def suggest_effects(base: ModelFit, candidates=None) -> Suggestions:
     """
     data = base.data
     diag = base.diagnose()
-    cands = base.model.candidates() if candidates is None else check_effects(candidates)
+    cands = base.model.candidates() if candidates is None else \
+        tuple(e for e in check_effects(candidates) if e in base.model.candidates())
     items = []
     for eff in cands:
         if eff in base.effects:
