@@ -56,7 +56,7 @@ def test_diagnose_json_shape(capsys, loop_csv):
     rc, out, _ = _run(capsys, "model", "diagnose", str(loop_csv), "--effects", "deadband", "--json")
     assert rc == 0
     doc = json.loads(out)
-    assert set(doc) == {"base", "suggestions"}
+    assert set(doc) == {"base", "suggestions", "rivals"}
     assert set(doc["base"]) == {"effects", "params", "fit_pct", "heldout_rmse", "bic"}
     assert doc["base"]["effects"] == ["deadband", "bias"]
     assert doc["suggestions"], "no suggestions"

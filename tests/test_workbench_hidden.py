@@ -26,6 +26,7 @@ import pytest
 
 from valvediag import simulate_loop
 from valvediag.workbench import forward_select, prepare_loop
+from valvediag.workbench.suggest import RIVAL_T
 
 # Tolerances on the recovered parameters
 TOL = {
@@ -189,3 +190,66 @@ def test_the_starting_model_fits_the_operating_point(load, params, seed, shift):
     assert abs(got - true) <= TOL["load_offset"][1] * abs(true), (got, true)
     assert 1 - fit.fit_pct / 100 < 0.1
     assert not any(s.accepted for s in ladder.steps[0].suggestions.items)
+
+
+@pytest.mark.parametrize("name", [c[0] for c in CASES if c[1] in ("lag", "dead_time")])
+def test_lag_and_dead_time_told_apart_where_the_record_shows_it(name):
+    """Both rivals are accepted on these records (either shifts the phase);
+    the paired held-out comparison says which fits better, and it is the
+    hidden one, by more than two standard errors."""
+    hidden = next(c[1] for c in CASES if c[0] == name)
+    (r,) = ladder_for(name, False).steps[0].suggestions.rivals
+    assert r.distinguishable and r.effects[0] == hidden, r.summary
+    assert r.t >= 2 * RIVAL_T, r.summary
+
+
+def _issue_lag_loop(seed):
+    """A first-order lag of 40 s on an integrator of 170 s behind a sticky
+    valve (S 3, J 1.5), 4.5 h at 1 s, set-point steps every 25-50 min, PV
+    noise 1 % of the swing."""
+    rng = np.random.default_rng(seed)
+    n = int(4.5 * 3600)
+    sp = np.zeros(n)
+    t = 0
+    while True:
+        t += int(rng.uniform(25, 50) * 60)
+        if t >= n:
+            break
+        sp[t:] += rng.choice([-1, 1]) * rng.uniform(0.5, 1.5)
+    sim = simulate_loop(kc=2.0, ti=255.0, tau=170.0, sample_time=1.0, n_samples=n, lag=40.0,
+                        valve="kano", valve_params={"S": 3.0, "J": 1.5}, noise_std=0.002,
+                        seed=seed, sp_profile=sp)
+    pv = sim.pv + 0.01 * np.ptp(sim.pv[n // 3:]) * rng.standard_normal(n)
+    return prepare_loop(pv, sim.op, 1.0, sp=sp)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_lag_behind_a_sticky_valve_is_not_called_a_dead_time(seed):
+    """The lag is ranked first, or the pair is reported as one the record
+    cannot tell apart, with the figure that decides it; never a dead time
+    ranked first as if the record had shown it."""
+    sug = forward_select(_issue_lag_loop(seed), ("stiction",), max_steps=1).steps[0].suggestions
+    first = sug.items[0].effect
+    (r,) = sug.rivals
+    assert first == "lag" or not r.distinguishable, r.summary
+    assert r.effects[0] == first or not r.distinguishable
+    if not r.distinguishable:
+        assert "indistinguishable" in r.summary and "standard errors" in r.summary
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_lag_and_dead_time_reported_indistinguishable_on_a_short_noisy_record(seed):
+    """A loose valve's loop, one hour, PV noise 3 % of the swing, a lag of
+    6 s: both effects help by about 1.5 % and their held-out errors differ
+    by 0.1 %: the suggestion says the record cannot tell them apart, and
+    why."""
+    sim = simulate_loop(kc=2.0, ti=60.0, tau=60.0, sample_time=1.0, duration=3600, sp_step=1.0,
+                        valve="backlash", valve_params={"DB": 3.0}, noise_std=0.002, seed=seed,
+                        lag=6.0)
+    amp = 0.5 * np.ptp(sim.pv[sim.pv.size // 3:])
+    pv = sim.pv + 0.03 * amp * np.random.default_rng(seed).standard_normal(sim.pv.size)
+    sug = forward_select(prepare_loop(pv, sim.op, 1.0), ("deadband",), max_steps=1).steps[0].suggestions
+    (r,) = sug.rivals
+    assert not r.distinguishable and r.t < RIVAL_T, r.summary
+    assert "a lag rounds the response to a step" in r.summary
+    assert "indistinguishable" in sug.table()

@@ -59,7 +59,7 @@ def register(sub):
     _common(d, effects_default="", effects_help="starting model: " + EFFECTS_HELP
                                                 + " (default: the plant alone)")
     d.add_argument("--json", action="store_true",
-                   help='print {"base": {...}, "suggestions": [...]}, best first')
+                   help='print {"base": {...}, "suggestions": [...], "rivals": [...]}, best first')
     d.set_defaults(func=run_diagnose)
 
     r = msub.add_parser("report", help="write an HTML page: before/after, residuals, ladder",

@@ -115,6 +115,11 @@ def _recommendation(ladder: ErrorLadder) -> str:
                      "(OP units).")
     elif "DB" in p:
         parts.append(f"Loose valve: dead band DB = {p['DB']:.3g} (OP units).")
+    # rival effects the record could not tell apart: the choice is not evidence
+    for st in ladder.steps:
+        for r in (st.suggestions.rivals if st.suggestions is not None else ()):
+            if not r.distinguishable:
+                parts.append(r.summary[:1].upper() + r.summary[1:] + ".")
     return " ".join(parts)
 
 

@@ -23,11 +23,18 @@ from .diagnosis import Z99, Diagnosis, event_average, residual_ccf
 from .effects import EFFECTS, check_effects
 from .model import LoopModel, ModelFit
 
-__all__ = ["Evidence", "Suggestion", "Suggestions", "LadderStep", "ErrorLadder",
-           "effect_evidence", "suggest_effects", "forward_select", "diagnose"]
+__all__ = ["Evidence", "Suggestion", "Suggestions", "PairComparison", "LadderStep", "ErrorLadder",
+           "effect_evidence", "suggest_effects", "compare_heldout", "forward_select", "diagnose"]
 
 #: Smallest relative fall of the held-out RMSE for an effect to be accepted.
 MIN_GAIN = 0.01
+#: Effects with the same parameter count whose residual signatures are alike:
+#: when both are accepted the record must show which one it holds.
+RIVALS = (("lag", "dead_time"),)
+#: The held-out errors of two rivals differ for real when their paired
+#: difference over the held-out segments is at least this many standard
+#: errors from zero [-] (about 95 % two-sided).
+RIVAL_T = 2.0
 
 
 @dataclass(frozen=True)
@@ -280,6 +287,103 @@ class Suggestion:
                 "bic": finite_or_none(self.bic), "evidence": ev}
 
 
+@dataclass(frozen=True)
+class PairComparison:
+    """Whether a record tells two rival effects apart.
+
+    Attributes
+    ----------
+    effects : tuple of str
+        The two effects, the one with the lower held-out error first.
+    t : float
+        Mean paired difference of their squared errors over the held-out
+        segments, in standard errors of that mean (>= 0) [-].
+    segments : int
+        Held-out segments compared.
+    error_diff_pct : float
+        How much lower the first one's held-out RMSE is [%].
+    distinguishable : bool
+        ``t >= RIVAL_T``.
+    summary : str
+        One sentence: which is better and by what figure, or why the record
+        cannot tell.
+    """
+
+    effects: tuple[str, str]
+    t: float
+    segments: int
+    error_diff_pct: float
+    distinguishable: bool
+    summary: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready form (NaN as None)."""
+        return {"effects": list(self.effects), "t": finite_or_none(self.t),
+                "segments": int(self.segments),
+                "error_diff_pct": finite_or_none(self.error_diff_pct),
+                "distinguishable": bool(self.distinguishable), "summary": self.summary}
+
+
+#: What tells each pair of rivals apart, for the summary of a tie.
+_RIVAL_SHAPES = {("dead_time", "lag"): "a lag rounds the response to a step, a dead time delays "
+                                        "it unchanged; a record with set-point steps or sharp OP "
+                                        "moves (slips) tells them apart"}
+
+
+def compare_heldout(a: ModelFit, b: ModelFit, names=("a", "b")) -> PairComparison:
+    """Compare two fits of one record on its held-out segments.
+
+    Parameters
+    ----------
+    a, b : ModelFit
+        Fits of the same :class:`LoopData`.
+    names : tuple of str
+        Labels of ``a`` and ``b`` (the effects they add).
+
+    Returns
+    -------
+    PairComparison
+
+    Notes
+    -----
+    Each held-out segment is re-initialised, so its squared error is one
+    nearly independent observation of the fit (samples within a segment are
+    not); the paired t statistic of the segment differences says whether
+    the held-out RMSEs differ beyond the noise of that sample of segments.
+    Two models with the same number of parameters need no further margin
+    (the held-out error does not reward parameters). The differences are
+    heavy-tailed where a few events (set-point steps, slips) carry all the
+    information, so a difference driven by two or three segments may not
+    reach :data:`RIVAL_T`: the record then has too few such events to tell.
+    """
+    d = a.data
+    held = np.flatnonzero(d.seg_set == 1)
+    ea = np.nan_to_num(a.residual) ** 2
+    eb = np.nan_to_num(b.residual) ** 2
+    ca, cb = np.r_[0.0, np.cumsum(ea)], np.r_[0.0, np.cumsum(eb)]
+    sa = ca[d.seg_end[held]] - ca[d.seg_start[held]]
+    sb = cb[d.seg_end[held]] - cb[d.seg_start[held]]
+    a_first = sa.sum() <= sb.sum()
+    first, second = (names[0], names[1]) if a_first else (names[1], names[0])
+    x = (sb - sa) if a_first else (sa - sb)       # > 0 where the first one is better
+    m = int(x.size)
+    sd = float(x.std(ddof=1)) if m > 1 else 0.0
+    t = float(x.mean() / (sd / math.sqrt(m))) if sd > 0 else (math.inf if x.mean() > 0 else 0.0)
+    lo, hi = sorted((sa.sum(), sb.sum()))
+    diff = 100.0 * (1.0 - math.sqrt(lo / hi)) if hi > 0 else 0.0
+    ok = bool(t >= RIVAL_T)
+    if ok:
+        summary = (f"{first} fits better than {second}: held-out RMSE {diff:.1f} % lower, "
+                   f"{t:.1f} standard errors over {m} held-out segments")
+    else:
+        why = _RIVAL_SHAPES.get(tuple(sorted((first, second))), "")
+        summary = (f"{first} and {second} are indistinguishable on this record: held-out RMSE "
+                   f"{diff:.1f} % apart, {t:.1f} standard errors over {m} held-out segments "
+                   f"(need {RIVAL_T:g})" + (f"; {why}" if why else ""))
+    return PairComparison(effects=(first, second), t=t, segments=m, error_diff_pct=diff,
+                          distinguishable=ok, summary=summary)
+
+
 @dataclass(frozen=True, eq=False)
 class Suggestions:
     """Candidate effects for one model, best first.
@@ -291,11 +395,16 @@ class Suggestions:
         Where the base model fails.
     items : tuple of Suggestion
         Best first.
+    rivals : tuple of PairComparison
+        For each pair of :data:`RIVALS` both accepted: whether the record
+        tells them apart. Where it does not, the order of the two in
+        :attr:`items` is not evidence.
     """
 
     base: ModelFit = field(repr=False)
     diagnosis: Diagnosis = field(repr=False)
     items: tuple[Suggestion, ...]
+    rivals: tuple[PairComparison, ...] = ()
 
     @property
     def best(self) -> Suggestion | None:
@@ -307,7 +416,8 @@ class Suggestions:
 
     def to_dict(self) -> dict:
         """``{"base": {...}, "suggestions": [...]}`` (NaN as None)."""
-        return {"base": self.base.to_dict(), "suggestions": [s.to_dict() for s in self.items]}
+        return {"base": self.base.to_dict(), "suggestions": [s.to_dict() for s in self.items],
+                "rivals": [r.to_dict() for r in self.rivals]}
 
     def table(self) -> str:
         """A plain-text table."""
@@ -318,6 +428,7 @@ class Suggestions:
             mark = "accepted" if s.accepted else "rejected"
             rows.append(f"{'+ ' + s.effect:34s} {s.fit_pct:7.1f} {s.heldout_rmse:14.4g} "
                         f"{s.bic:11.1f}  {mark}; {s.evidence.summary}")
+        rows += [f"{'':34s} {r.summary}" for r in self.rivals]
         return "\n".join(rows)
 
     def plot(self, ax=None):
@@ -422,7 +533,10 @@ def suggest_effects(base: ModelFit, candidates=None) -> Suggestions:
     ref = base.heldout_rmse if base.heldout_rmse > 0 else 1.0
     items.sort(key=lambda s: (not s.accepted, round(s.heldout_rmse / ref / 0.005),
                               -np.nan_to_num(s.evidence.statistic)))
-    return Suggestions(base=base, diagnosis=diag, items=tuple(items))
+    acc = {s.effect: s for s in items if s.accepted}
+    rivals = tuple(compare_heldout(acc[a].fit, acc[b].fit, (a, b)) for a, b in RIVALS
+                   if a in acc and b in acc)
+    return Suggestions(base=base, diagnosis=diag, items=tuple(items), rivals=rivals)
 
 
 @dataclass(frozen=True, eq=False)
