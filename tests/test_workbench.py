@@ -201,6 +201,11 @@ def test_effect_names_and_units():
     (np.zeros(2000), np.linspace(0, 50, 2000), "does not oscillate"),
     (np.zeros(2000), np.zeros(1999), "samples"),
     (np.full(2000, 3.5), 40 + 5 * np.sin(np.arange(2000) / 30), "the PV never moves"),
+    # three reversals in the record: too few to tell a band from the process
+    (np.sin(np.arange(2000) / 30), 40 + 5 * np.sin(np.arange(2000) / 200), "reverses only 3 times"),
+    # the PV runs away under an oscillating OP (an open or unstable loop)
+    (np.arange(2000) / 10 + np.sin(np.arange(2000) / 30), 40 + 5 * np.sin(np.arange(2000) / 30),
+     "the PV diverges"),
 ])
 def test_bad_data_one_line_errors(pv, op, match):
     with pytest.raises(WorkbenchDataError, match=match) as exc:

@@ -12,7 +12,7 @@ The loop, at every sample ``k`` (sample time ``h``)::
     e_k   = sp_k - pv_k
     I_k   = I_{k-1} + (h / ti) e_k                 integral state
     op_k  = kc (e_k + I_k), clipped to op_limits    (anti-windup by clamping I)
-    mv_k  = valve(op_k)                            valve position
+    mv_k  = valve(op_k), clipped to valve_limits   valve position
     v(t)  = mv_k - load_k, held over [k h, (k+1) h) and delayed by dead_time
     y     <- process driven by v
 
@@ -40,8 +40,8 @@ __all__ = ["simulate_loop", "LoopSimulation", "process_matrices"]
 # Columns of the per-scenario parameter table handed to the kernel.
 (C_KC, C_TI, C_H, C_VCODE, C_VP0, C_VP1, C_ND, C_SP0, C_SPSTEP, C_SPT, C_LOAD0,
  C_LSTEP, C_LSTEPT, C_LDRIFT, C_LSINA, C_LSINW, C_LSINPHI, C_NOISE, C_SEED,
- C_OPLO, C_OPHI, C_X0, C_Y0, C_Z0, C_NMAX, C_LNOISE, C_VBAND) = range(27)
-N_COLS = 27
+ C_OPLO, C_OPHI, C_X0, C_Y0, C_Z0, C_NMAX, C_LNOISE, C_VBAND, C_VLO, C_VHI) = range(29)
+N_COLS = 29
 
 
 def process_matrices(process, process_gain, tau, lag, dead_time, sample_time):
@@ -122,6 +122,8 @@ def simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_s
         np.random.seed(int(P[C_SEED]))
     op_lo = P[C_OPLO]
     op_hi = P[C_OPHI]
+    v_lo = P[C_VLO]
+    v_hi = P[C_VHI]
     # delay line: the previous nd + 1 plant inputs v_{k-nd-1} .. v_{k-1}
     L = nd + 1
     buf = np.empty(L)
@@ -197,6 +199,10 @@ def simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_s
         vx, vup, vd, vstuck, vus, vcause, vue = valve_step(vcode, vp0, vp1, vband, u, vx, vup, vd,
                                                            vstuck, vus, vcause, vue)
         x = vx
+        if x > v_hi:
+            x = v_hi
+        elif x < v_lo:
+            x = v_lo
         out_pv[k] = pv
         if not pv_only:
             out_op[k] = u
@@ -253,7 +259,8 @@ def _simulate_batch_profiles(P, phi_f, gam_f, phi_g, gam_g, n, pv, op, mv, sp, l
 def parameter_table(m, *, kc, ti, sample_time, valve, valve_params, process, process_gain, tau,
                     lag, dead_time, sp, sp_step, sp_step_time, load, load_step, load_step_time,
                     load_drift, load_sin_amplitude, load_sin_period, load_sin_phase, noise_std,
-                    seed, op_limits, load_noise_std=0.0, valve_noise_band=0.0):
+                    seed, op_limits, load_noise_std=0.0, valve_noise_band=0.0,
+                    valve_limits=(-np.inf, np.inf)):
     """Build the (m, N_COLS) kernel table and process matrices."""
     P = np.zeros((m, N_COLS))
 
@@ -308,6 +315,8 @@ def parameter_table(m, *, kc, ti, sample_time, valve, valve_params, process, pro
     P[:, C_SEED] = seeds
     col(C_OPLO, op_limits[0])
     col(C_OPHI, op_limits[1])
+    col(C_VLO, valve_limits[0])
+    col(C_VHI, valve_limits[1])
     # steady state at sp: the valve balances the load (integrating) or holds sp/K
     K = np.broadcast_to(np.asarray(process_gain, dtype=float), (m,))
     v0 = np.zeros(m) if process == "integrating" else P[:, C_SP0] / K
@@ -382,7 +391,7 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
                   load_sin_amplitude=0.0, load_sin_period=np.inf, load_sin_phase=0.0,
                   load_noise_std=0.0, noise_std=0.0, seed=None,
                   op_limits=(-np.inf, np.inf), valve_noise_band=0.0, load_profile=None,
-                  sp_profile=None) -> LoopSimulation:
+                  sp_profile=None, valve_limits=(-np.inf, np.inf)) -> LoopSimulation:
     """Simulate PI control loops with a valve model, vectorised over scenarios.
 
     Every numeric argument may be a scalar or an array of shape (m,), one value
@@ -434,6 +443,12 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
         Seed for the noise; each scenario gets its own stream.
     op_limits : tuple of float
         Controller output limits [OP unit]; the integral is clamped there.
+    valve_limits : tuple of float
+        Travel limits of the valve [OP unit]: its position is clipped there
+        while the OP may go beyond (a valve that cannot open or close fully,
+        or a positioner's stroke limit: the model workbench's
+        ``saturation``). The OP limits, by contrast, leave no trace in the
+        relation between the recorded OP and the PV.
     valve_noise_band : float or array_like
         Noise band of a Kano or Choudhury valve's actuator [OP unit]: the OP
         must fall back more than this from its running extreme to reverse
@@ -472,7 +487,8 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
                 raise ValueError(f"{name} must be a finite array of shape (n,) or (m, n)")
             profiles[name] = v
     sizes = [np.size(v) for k, v in args.items()
-             if k not in ("valve_params", "process", "seed", "op_limits", "duration", "n_samples")
+             if k not in ("valve_params", "process", "seed", "op_limits", "valve_limits", "duration",
+                          "n_samples")
              and not isinstance(v, str)]
     sizes += [v.shape[0] for v in profiles.values() if v.ndim == 2]
     sizes += [np.size(v) for v in (valve_params or {}).values()]
@@ -486,7 +502,8 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
         load_step_time=load_step_time, load_drift=load_drift,
         load_sin_amplitude=load_sin_amplitude, load_sin_period=load_sin_period,
         load_sin_phase=load_sin_phase, noise_std=noise_std, seed=seed, op_limits=op_limits,
-        load_noise_std=load_noise_std, valve_noise_band=valve_noise_band)
+        load_noise_std=load_noise_std, valve_noise_band=valve_noise_band,
+        valve_limits=valve_limits)
     if n_samples is None:
         if duration is not None:
             n_samples = int(np.ceil(duration / P[:, C_H].max()))

@@ -27,6 +27,13 @@ MIN_SAMPLES = 200
 #: An OP reversal smaller than this many OP noise standard deviations is
 #: noise, not a reversal of the valve's travel [-].
 NOISE_REVERSAL = 6.0
+#: Fewest reversals of the OP a record must show: each one is where a valve's
+#: band shows; with fewer, a band is not told from the process [-].
+MIN_REVERSALS = 4
+#: A PV (or control error, with a set point) whose straight-line trend
+#: explains at least this share of its variance, and whose last quarter lies
+#: beyond its first quarter's range, diverges [-].
+DIVERGING_R2 = 0.9
 
 
 class WorkbenchDataError(ValueError):
@@ -326,6 +333,35 @@ def rebuild_compressed_op(pv, op, sample_time: float, sp=None) -> tuple[np.ndarr
     return rebuilt, r2
 
 
+def _refuse_diverging(y, ok, label: str):
+    """Raise :class:`WorkbenchDataError` when ``y`` runs away over the record.
+
+    A loop that is open, saturated or unstable drives its PV (or control
+    error) off along a trend instead of about a set point; a model driven
+    by the OP then fits the runaway, and its valve band is meaningless.
+    Diverging: a straight-line trend explains at least
+    :data:`DIVERGING_R2` of the variance, and the last quarter of the
+    record lies wholly beyond the first quarter's range. A slow drift under
+    an oscillation explains little of the variance and passes.
+    """
+    idx = np.flatnonzero(ok)
+    if idx.size < 8:
+        return
+    v = y[idx]
+    t = idx.astype(float)
+    slope, icpt = np.polyfit(t, v, 1)
+    var = float(np.var(v))
+    r2 = 1.0 - float(np.var(v - (slope * t + icpt))) / var if var > 0 else 0.0
+    q = idx.size // 4
+    first, last = v[:q], v[-q:]
+    beyond = last.min() > first.max() or last.max() < first.min()
+    if r2 >= DIVERGING_R2 and beyond:
+        raise WorkbenchDataError(
+            f"the {label} diverges (from about {np.median(first):.4g} to {np.median(last):.4g}; a "
+            f"straight trend explains {100 * r2:.0f} % of its variance): an open, saturated or "
+            "unstable loop, whose runaway a valve model cannot size")
+
+
 def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 9,
                  band_max=None, name: str = "", op_noise: float | None = None,
                  reinit: str = "fit") -> LoopData:
@@ -373,8 +409,10 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     ------
     WorkbenchDataError
         Arrays of different lengths, a record too short, an OP that never
-        moves or never reverses (no oscillation to explain), a PV that is
-        all missing or never moves (frozen).
+        moves or reverses fewer than :data:`MIN_REVERSALS` times (too few
+        events to tell a valve's band from the process), a PV that is all
+        missing or never moves (frozen), a PV (or control error) that
+        diverges (:func:`_refuse_diverging`).
 
     Notes
     -----
@@ -429,6 +467,12 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     if not np.ptp(pv[okp]) > 0:
         raise WorkbenchDataError(f"the PV never moves (every valid sample is {pv[okp][0]:.6g}): "
                                  "a frozen or stale measurement; there is nothing to model")
+    if rev.size < MIN_REVERSALS:
+        raise WorkbenchDataError(f"the OP reverses only {rev.size} times by more than {delta:.3g} "
+                                 f"(need {MIN_REVERSALS}): too few reversals to tell a valve's "
+                                 "band from the process; give a longer record")
+    _refuse_diverging(pv if sp is None else sp - pv, okp if sp is None else okp & np.isfinite(sp),
+                      "control error" if sp is not None else "PV")
     held = float(np.mean(dop == 0.0)) if dop.size else 0.0
     # period: twice the median spacing of the reversals (robust to start-up
     # transients and irregular cycles, unlike the ACF)

@@ -1,0 +1,184 @@
+"""Hidden-effect benchmark of the model workbench: is the missing effect named?
+
+Each case is a simulated loop whose data hold every effect of a starting
+model plus ONE more, the hidden effect; the workbench starts from the model
+without it (``forward_select``, two steps). The grid: every effect the
+workbench suggests (stiction behind a dead band, a dead band behind a linear
+valve, dead time, lag, drift, saturation) x four parameter points across its
+range x an integrating and a self-regulating plant x two seeds. Each record:
+4.5 h at 1 s, PI control, set-point steps every 25-50 min, measurement noise
+of 1 % of the PV's swing on the recorded PV (the noise floor of the held-out
+RMSE).
+
+Printed per effect: how often the hidden effect is ranked first, how often a
+lag and a dead time were reported indistinguishable (and so not counted as
+wrong when the other came first), the median fall of the held-out error when
+the hidden effect is added, the median ratio of that error to the noise
+floor, the share where the error falls >= 30 % or ends within 1.25 x the
+noise floor, and how often an effect absent from the data was accepted after
+the hidden one. Then the confusion: the effect ranked first against the
+hidden one.
+
+Targets (the workbench issue): hidden effect first in >= 90 % (lag and dead
+time: except where reported indistinguishable); error falls >= 30 % or ends
+within 1.25 x the floor in >= 90 %; no absent effect accepted.
+
+Usage: python benchmarks/bench_hidden_effects.py [--workers W] [--seeds 2] [--hours 4.5]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+#: hidden effect -> (starting model, the four parameter points)
+GRID = {
+    "stiction": (("deadband",), [dict(S=1.0, J=0.1), dict(S=2.0, J=1.0), dict(S=4.0, J=4.0),
+                                 dict(S=6.0, J=1.5)]),
+    "deadband": ((), [dict(DB=1.0), dict(DB=2.0), dict(DB=4.0), dict(DB=6.0)]),
+    "dead_time": (("deadband",), [dict(dead_time=5.0), dict(dead_time=10.0),
+                                  dict(dead_time=20.0), dict(dead_time=30.0)]),
+    "lag": (("deadband",), [dict(lag=5.0), dict(lag=15.0), dict(lag=30.0), dict(lag=60.0)]),
+    "drift": (("deadband",), [dict(load_drift=5e-5), dict(load_drift=-1e-4),
+                              dict(load_drift=2e-4), dict(load_drift=-4e-4)]),
+    "saturation": (("deadband",), [dict(beyond=0.05), dict(beyond=0.1), dict(beyond=0.2),
+                                   dict(beyond=0.3)]),
+}
+#: The valve of every case that does not hide a valve effect [% OP].
+DEADBAND = 3.0
+PLANTS = {
+    "integrating": dict(process="integrating", process_gain=1.0, tau=60.0, kc=2.0, ti=60.0),
+    "self-regulating": dict(process="self-regulating", process_gain=1.5, tau=30.0, kc=1.3,
+                            ti=20.0),
+}
+NOISE_PCT = 1.0
+
+
+def _setpoint(rng, n):
+    """Set-point steps of 0.5-1.5 (alternating in sign) every 25-50 min."""
+    sp = np.zeros(n)
+    t, sign = 0, 1.0
+    while True:
+        t += int(rng.uniform(25, 50) * 60)
+        if t >= n:
+            return sp
+        sp[t:] += sign * rng.uniform(0.5, 1.5)
+        sign = -sign
+
+
+def simulate_case(hidden: str, point: dict, plant: str, seed: int, hours: float):
+    """PV, OP, SP and the noise floor of one case."""
+    from valvediag import simulate_loop
+
+    rng = np.random.default_rng(seed)
+    n = int(hours * 3600)
+    kw = dict(PLANTS[plant], sample_time=1.0, n_samples=n, sp_profile=_setpoint(rng, n),
+              noise_std=0.002, seed=seed, valve="backlash", valve_params={"DB": DEADBAND})
+    p = dict(point)
+    if hidden == "stiction":
+        kw.update(valve="kano", valve_params=p)
+    elif hidden == "deadband":
+        kw.update(valve_params=p)
+    elif hidden == "saturation":
+        # the valve's travel limited where the free valve spends the given share
+        # of the record beyond (half above, half below); the OP itself is not
+        # limited: that would leave no trace between the recorded OP and the PV
+        free = simulate_loop(**kw).mv[n // 10:]
+        q = 50.0 * p["beyond"]
+        kw.update(valve_limits=(np.percentile(free, q), np.percentile(free, 100.0 - q)))
+    else:
+        kw.update(p)
+    sim = simulate_loop(**kw)
+    pv, op = sim.pv, sim.op
+    sigma = NOISE_PCT / 100.0 * np.ptp(pv[n // 10:])
+    pv = pv + sigma * rng.standard_normal(n)
+    return pv, op, kw["sp_profile"], sigma
+
+
+def run_case(args):
+    """Forward selection from the starting model; the figures of one case."""
+    from valvediag.workbench import forward_select, prepare_loop
+    from valvediag.workbench.data import WorkbenchDataError
+
+    hidden, k, point, plant, seed, hours = args
+    start, _ = GRID[hidden]
+    pv, op, sp, sigma = simulate_case(hidden, point, plant, seed, hours)
+    out = dict(hidden=hidden, point=k, plant=plant, seed=seed)
+    t0 = time.perf_counter()
+    try:
+        data = prepare_loop(pv, op, 1.0, sp=sp)
+    except WorkbenchDataError as exc:
+        out.update(refused=str(exc), seconds=time.perf_counter() - t0)
+        return out
+    ladder = forward_select(data, start, process_type=plant, max_steps=2)
+    sug = ladder.steps[0].suggestions
+    top = sug.items[0]
+    mine = next(s for s in sug.items if s.effect == hidden)
+    tie = any(not r.distinguishable and hidden in r.effects and top.effect in r.effects
+              for r in sug.rivals)
+    added = [s.added for s in ladder.steps[1:]]
+    absent = [a for a in added if a != hidden]
+    out.update(first=top.effect if top.accepted else "none", tie=tie,
+               fall=1.0 - mine.heldout_rmse / sug.base.heldout_rmse,
+               floor=mine.heldout_rmse / sigma, absent=absent,
+               seconds=time.perf_counter() - t0)
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--seeds", type=int, default=2, help="seeds per grid point")
+    ap.add_argument("--hours", type=float, default=4.5, help="record length [h]")
+    args = ap.parse_args()
+    cases = [(h, k, p, plant, 1000 * s + 10 * k + j, args.hours)
+             for j, h in enumerate(GRID) for k, p in enumerate(GRID[h][1])
+             for plant in PLANTS for s in range(args.seeds)]
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(args.workers) as ex:
+        res = list(ex.map(run_case, cases))
+    wall = time.perf_counter() - t0
+    print(f"hidden-effect benchmark: {len(res)} cases ({len(GRID)} effects x 4 points x "
+          f"{len(PLANTS)} plants x {args.seeds} seeds), {args.hours:g} h at 1 s, "
+          f"{os.cpu_count()} cores, {args.workers} workers, {wall:.0f} s wall, "
+          f"{sum(r['seconds'] for r in res):.0f} s of fitting")
+    print(f"\n{'effect':12s} {'plant':16s} {'n':>3s} {'first':>6s} {'tie':>4s} {'fall med':>9s} "
+          f"{'err/floor':>10s} {'fall>=30%|<=1.25':>17s} {'absent acc':>11s} {'refused':>8s}")
+    rows = [(h, plant) for h in GRID for plant in PLANTS] + [(h, None) for h in GRID]
+    for h, plant in rows:
+        sel = [r for r in res if r["hidden"] == h and (plant is None or r["plant"] == plant)]
+        ok = [r for r in sel if "refused" not in r]
+        if not ok:
+            print(f"{h:12s} {plant or 'both':16s} {len(sel):3d}  all refused")
+            continue
+        first = np.mean([r["first"] == h or r["tie"] for r in ok])
+        tie = sum(r["tie"] and r["first"] != h for r in ok)
+        fall = np.median([r["fall"] for r in ok])
+        floor = np.median([r["floor"] for r in ok])
+        good = np.mean([r["fall"] >= 0.3 or r["floor"] <= 1.25 for r in ok])
+        absent = sum(bool(r["absent"]) for r in ok)
+        print(f"{h:12s} {plant or 'both':16s} {len(sel):3d} {100 * first:5.0f}% {tie:4d} "
+              f"{100 * fall:8.0f}% {floor:10.2f} {100 * good:16.0f}% {absent:11d} "
+              f"{len(sel) - len(ok):8d}")
+    print("\nconfusion (rows: hidden effect; columns: effect ranked first, 'none' if none accepted)")
+    cols = list(GRID) + ["none"]
+    print(f"{'':12s} " + " ".join(f"{c[:9]:>9s}" for c in cols))
+    for h in GRID:
+        c = Counter(r["first"] for r in res if r["hidden"] == h and "refused" not in r)
+        print(f"{h:12s} " + " ".join(f"{c.get(x, 0):9d}" for x in cols))
+    bad = [r for r in res if "refused" in r or (r["first"] != r["hidden"] and not r["tie"])
+           or r["absent"]]
+    if bad:
+        print("\ncases off target:")
+        for r in bad:
+            what = r.get("refused") or (f"first {r['first']}, fall {100 * r['fall']:.0f} %, "
+                                        f"err/floor {r['floor']:.2f}, absent accepted {r['absent']}")
+            print(f"  {r['hidden']:10s} point {r['point']} {r['plant']:15s} seed {r['seed']}: {what}")
+
+
+if __name__ == "__main__":
+    main()
