@@ -27,6 +27,9 @@ MIN_SAMPLES = 200
 #: An OP reversal smaller than this many OP noise standard deviations is
 #: noise, not a reversal of the valve's travel [-].
 NOISE_REVERSAL = 6.0
+#: Time blocks are rebalanced by the OP's reversals when one holds fewer than
+#: this share of the mean reversals per block [-].
+BURSTY_BLOCK = 0.5
 #: Fewest reversals of the OP a record must show: each one is where a valve's
 #: band shows; with fewer, a band is not told from the process [-].
 MIN_REVERSALS = 4
@@ -425,7 +428,11 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     ``band_max`` (or the 25th percentile OP swing if smaller), plus half a
     period, are not scored: there the valve state (and a lag fed by it)
     depends on the unknown initial position (a pitfall of fitting Kano's model). The data
-    are never resampled.
+    are never resampled. The alternating blocks are of equal time, unless one of them
+    then holds under :data:`BURSTY_BLOCK` of the mean OP reversals per block (moves
+    in bursts, as around set-point steps): then each holds an equal share of half
+    the time and half the reversals, lest the fit train on some bursts only, or
+    check on none.
     """
     if reinit not in ("fit", "measured"):
         raise WorkbenchDataError(f"reinit must be 'fit' or 'measured', not {reinit!r}")
@@ -514,6 +521,17 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     while blocks > 3 and nseg < 2 * blocks:
         blocks -= 2
     block_of = np.minimum((np.arange(nseg) * blocks) // nseg, blocks - 1)
+    # where the OP's moves come in bursts (set-point steps), time blocks can
+    # leave every burst to one set, and a band or time constant that only those
+    # moves show is then never trained on or never checked: the blocks then
+    # take equal shares of time and of reversals together
+    scored = rev[rev >= starts[0]]
+    nrev = np.bincount(np.searchsorted(starts, scored, side="right") - 1, minlength=nseg)
+    per_block = np.bincount(block_of, weights=nrev, minlength=blocks)
+    if nrev.sum() > 0 and per_block.min() < BURSTY_BLOCK * per_block.mean():
+        share = 0.5 / nseg + 0.5 * nrev / nrev.sum()
+        mid = np.cumsum(share) - 0.5 * share
+        block_of = np.minimum((mid * blocks).astype(np.int64), blocks - 1)
     sets = (block_of % 2).astype(np.int64)
     # segments with missing data are not used
     bad = ~(okp & oko)

@@ -432,6 +432,26 @@ def _valve_values(prob: Problem, coarse: bool, joint: bool = False):
     return [dict()]
 
 
+#: Farthest a saturation stop reaches into the OP's range: the OP percentile
+#: (from either end) [%]. A valve held at its stops more than about half the
+#: time is not a saturating valve: stops closer together make a relay, which
+#: a fit then uses to mimic a sticky valve's jumps.
+SAT_REACH = 45.0
+
+
+def sat_reach(data: LoopData) -> tuple[float, float]:
+    """Highest low stop and lowest high stop searched [OP unit]."""
+    lo, hi = np.percentile(data.op, [SAT_REACH, 100.0 - SAT_REACH])
+    return float(lo), float(hi)
+
+
+def tau_range(data: LoopData) -> tuple[float, float]:
+    """Searched range of a self-regulating plant's time constant [s]: one
+    sample to five OP periods (at least ten samples)."""
+    h = data.sample_time
+    return h, max(5 * _period(data), 10 * h)
+
+
 def _grid(prob: Problem, coarse: bool):
     """The grid of one searched stage at a time, as lists of field dicts."""
     d = prob.data
@@ -439,14 +459,17 @@ def _grid(prob: Problem, coarse: bool):
     P = _period(d)
     axes = []
     if prob.process_type == "self-regulating":
-        axes.append([dict(tau=float(v)) for v in np.geomspace(h, max(5 * P, 10 * h),
-                                                               10 if coarse else 24)])
+        axes.append([dict(tau=float(v)) for v in np.geomspace(*tau_range(d), 10 if coarse else 24)])
     if prob.vcode != LINEAR:
         axes.append(_valve_values(prob, coarse))
     if "saturation" in prob.effects:
         op = d.op
-        lows = np.r_[-np.inf, np.percentile(op, [0.5, 1, 2, 3, 5, 7.5, 10, 15])]
-        highs = np.r_[np.percentile(op, [85, 90, 92.5, 95, 97, 98, 99, 99.5]), np.inf]
+        # a stop acts on the valve's position, which lies inside the OP's range by
+        # half a dead band or stick band: the grid reaches well inside it
+        # (and under windup the OP spends long beyond the stop it pushes against)
+        q = np.array([0.5, 1, 2, 3, 5, 7.5, 10, 15, 20, 25, 30, 35, 40, SAT_REACH])
+        lows = np.r_[-np.inf, np.percentile(op, q)]
+        highs = np.r_[np.percentile(op, 100 - q[::-1]), np.inf]
         axes.append([dict(sat_low=float(a), sat_high=float(b)) for a in lows for b in highs])
     if "dead_time" in prob.effects:
         dmax = max_delay(d)
@@ -485,6 +508,14 @@ def _continuous(prob: Problem, theta: Theta):
             names.append("phase")
             x0.append(theta.phase % 1.0)
             steps.append(0.25)
+    if "saturation" in prob.effects:
+        # finite stops are refined with the rest (an absent stop stays absent)
+        for nm in ("sat_low", "sat_high"):
+            v = getattr(theta, nm)
+            if math.isfinite(v):
+                names.append(nm)
+                x0.append(v / bm)
+                steps.append(1 / 40)
     if "dead_time" in prob.effects:
         names.append("delay")
         x0.append(theta.delay)
@@ -500,7 +531,8 @@ def _continuous(prob: Problem, theta: Theta):
     return names, np.array(x0, dtype=float), np.array(steps, dtype=float)
 
 
-def _from_vector(theta: Theta, names, v, dmax, bm) -> Theta:
+def _from_vector(theta: Theta, names, v, dmax, bm, tau_max=math.inf,
+                 sat_reach=(math.inf, -math.inf)) -> Theta:
     kw = {}
     for nm, val in zip(names, v):
         if nm == "DB":
@@ -511,14 +543,23 @@ def _from_vector(theta: Theta, names, v, dmax, bm) -> Theta:
             kw["Jr"] = min(max(float(val), 0.0), 1.0)      # np.clip, without its overhead
         elif nm == "phase":
             kw["phase"] = float(val % 1.0)
+        elif nm == "sat_low":
+            kw[nm] = min(float(val) * bm, sat_reach[0])
+        elif nm == "sat_high":
+            kw[nm] = max(float(val) * bm, sat_reach[1])
         elif nm == "delay":
             kw["delay"] = min(max(float(val), 0.0), dmax)
         elif nm == "loglag":
             kw["lag"] = float(math.exp(min(val, 50.0)))
         elif nm == "logtau":
-            kw["tau"] = float(math.exp(min(val, 50.0)))
+            # within the searched range: beyond it the plant is an integrator
+            # whose gain and operating point run off together
+            kw["tau"] = float(min(math.exp(min(val, 50.0)), tau_max))
     if "S" in kw:
         kw["J"] = kw.pop("Jr", 0.0) * kw["S"]
+    lo, hi = kw.get("sat_low", theta.sat_low), kw.get("sat_high", theta.sat_high)
+    if lo > hi:
+        kw["sat_low"], kw["sat_high"] = hi, lo
     return theta.replace(**kw)
 
 
@@ -531,10 +572,12 @@ def _refine(prob: Problem, theta: Theta, maxfev: int) -> tuple[Theta, float]:
     if not names:
         return theta, f0
     dmax = max_delay(prob.data)
+    tau_max = tau_range(prob.data)[1]
+    reach = sat_reach(prob.data)
     cache = {}
 
     def f(v):
-        th = _from_vector(theta, names, v, dmax, prob.data.band_max)
+        th = _from_vector(theta, names, v, dmax, prob.data.band_max, tau_max, reach)
         if th not in cache:
             cache[th] = float(prob.score([th])[0, 0])
         return cache[th]
@@ -545,7 +588,7 @@ def _refine(prob: Problem, theta: Theta, maxfev: int) -> tuple[Theta, float]:
                                 xatol=1e-3, fatol=0.0))
     fb = f(res.x)
     if fb <= f0:
-        return _from_vector(theta, names, res.x, dmax, prob.data.band_max), fb
+        return _from_vector(theta, names, res.x, dmax, prob.data.band_max, tau_max, reach), fb
     return theta, f0
 
 

@@ -33,7 +33,9 @@ MIN_GAIN = 0.01
 RIVALS = (("lag", "dead_time"),)
 #: The held-out errors of two rivals differ for real when their paired
 #: difference over the held-out segments is at least this many standard
-#: errors from zero [-] (about 95 % two-sided).
+#: errors from zero [-] (about 95 % two-sided), and the held-out RMSEs differ
+#: by at least :data:`MIN_GAIN` (a difference too small to accept an effect
+#: for is too small to choose between two).
 RIVAL_T = 2.0
 
 
@@ -303,7 +305,8 @@ class PairComparison:
     error_diff_pct : float
         How much lower the first one's held-out RMSE is [%].
     distinguishable : bool
-        ``t >= RIVAL_T``.
+        ``t >= RIVAL_T`` and the held-out RMSEs differ by at least
+        :data:`MIN_GAIN`.
     summary : str
         One sentence: which is better and by what figure, or why the record
         cannot tell.
@@ -371,7 +374,7 @@ def compare_heldout(a: ModelFit, b: ModelFit, names=("a", "b")) -> PairCompariso
     t = float(x.mean() / (sd / math.sqrt(m))) if sd > 0 else (math.inf if x.mean() > 0 else 0.0)
     lo, hi = sorted((sa.sum(), sb.sum()))
     diff = 100.0 * (1.0 - math.sqrt(lo / hi)) if hi > 0 else 0.0
-    ok = bool(t >= RIVAL_T)
+    ok = bool(t >= RIVAL_T and diff >= 100.0 * MIN_GAIN)
     if ok:
         summary = (f"{first} fits better than {second}: held-out RMSE {diff:.1f} % lower, "
                    f"{t:.1f} standard errors over {m} held-out segments")
@@ -379,7 +382,7 @@ def compare_heldout(a: ModelFit, b: ModelFit, names=("a", "b")) -> PairCompariso
         why = _RIVAL_SHAPES.get(tuple(sorted((first, second))), "")
         summary = (f"{first} and {second} are indistinguishable on this record: held-out RMSE "
                    f"{diff:.1f} % apart, {t:.1f} standard errors over {m} held-out segments "
-                   f"(need {RIVAL_T:g})" + (f"; {why}" if why else ""))
+                   f"(need {100 * MIN_GAIN:g} % and {RIVAL_T:g})" + (f"; {why}" if why else ""))
     return PairComparison(effects=(first, second), t=t, segments=m, error_diff_pct=diff,
                           distinguishable=ok, summary=summary)
 
@@ -536,6 +539,12 @@ def suggest_effects(base: ModelFit, candidates=None) -> Suggestions:
     acc = {s.effect: s for s in items if s.accepted}
     rivals = tuple(compare_heldout(acc[a].fit, acc[b].fit, (a, b)) for a, b in RIVALS
                    if a in acc and b in acc)
+    for r in rivals:
+        # a real difference between rivals orders them, whatever the near-tie
+        # rule above (held-out errors within 0.5 %, then the evidence) said
+        i, j = (next(k for k, s in enumerate(items) if s.effect == e) for e in r.effects)
+        if r.distinguishable and i > j:
+            items[i], items[j] = items[j], items[i]
     return Suggestions(base=base, diagnosis=diag, items=tuple(items), rivals=rivals)
 
 
