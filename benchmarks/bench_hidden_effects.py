@@ -164,7 +164,8 @@ def main():
         print(f"{h:12s} {plant or 'both':16s} {len(sel):3d} {100 * first:5.0f}% {tie:4d} "
               f"{100 * fall:8.0f}% {floor:10.2f} {100 * good:16.0f}% {absent:11d} "
               f"{len(sel) - len(ok):8d}")
-    print("\nconfusion (rows: hidden effect; columns: effect ranked first, 'none' if none accepted)")
+    print("\nconfusion (rows: hidden effect; columns: effect ranked first, "
+          "'none' if none accepted)")
     cols = list(GRID) + ["none"]
     print(f"{'':12s} " + " ".join(f"{c[:9]:>9s}" for c in cols))
     for h in GRID:
@@ -175,9 +176,11 @@ def main():
     if bad:
         print("\ncases off target:")
         for r in bad:
-            what = r.get("refused") or (f"first {r['first']}, fall {100 * r['fall']:.0f} %, "
-                                        f"err/floor {r['floor']:.2f}, absent accepted {r['absent']}")
-            print(f"  {r['hidden']:10s} point {r['point']} {r['plant']:15s} seed {r['seed']}: {what}")
+            what = r.get("refused") or (
+                f"first {r['first']}, fall {100 * r['fall']:.0f} %, "
+                f"err/floor {r['floor']:.2f}, absent accepted {r['absent']}")
+            print(f"  {r['hidden']:10s} point {r['point']} {r['plant']:15s} "
+                  f"seed {r['seed']}: {what}")
 
 
 if __name__ == "__main__":

@@ -459,7 +459,8 @@ def _grid(prob: Problem, coarse: bool):
     P = _period(d)
     axes = []
     if prob.process_type == "self-regulating":
-        axes.append([dict(tau=float(v)) for v in np.geomspace(*tau_range(d), 10 if coarse else 24)])
+        taus = np.geomspace(*tau_range(d), 10 if coarse else 24)
+        axes.append([dict(tau=float(v)) for v in taus])
     if prob.vcode != LINEAR:
         axes.append(_valve_values(prob, coarse))
     if "saturation" in prob.effects:
@@ -655,8 +656,9 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
     model's optimum alone they can stay in its valley (a dead band's fit
     with a dead time standing in for the slip jump gave a stiction fit
     with a dead time of 6.5 s for a true 3 s). The local
-    step is Nelder-Mead on all continuous parameters jointly; the discrete
-    saturation stops are searched on their grid after it.
+    step is Nelder-Mead on all continuous parameters jointly, finite
+    saturation stops included (at most :data:`SAT_REACH` % into the OP's
+    range); the stops are searched on their grid again after it.
     """
     # the grid's stages run from the cold start and from the warm one: from a
     # smaller model's optimum alone they can stay in its valley (a dead time

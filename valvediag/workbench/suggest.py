@@ -23,8 +23,9 @@ from .diagnosis import Z99, Diagnosis, event_average, residual_ccf
 from .effects import EFFECTS, check_effects
 from .model import LoopModel, ModelFit
 
-__all__ = ["Evidence", "Suggestion", "Suggestions", "PairComparison", "LadderStep", "ErrorLadder",
-           "effect_evidence", "suggest_effects", "compare_heldout", "forward_select", "diagnose"]
+__all__ = ["Evidence", "Suggestion", "Suggestions", "PairComparison", "LadderStep",
+           "ErrorLadder", "effect_evidence", "suggest_effects", "compare_heldout",
+           "forward_select", "diagnose"]
 
 #: Smallest relative fall of the held-out RMSE for an effect to be accepted.
 MIN_GAIN = 0.01
