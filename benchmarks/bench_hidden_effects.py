@@ -4,8 +4,8 @@ Each case is a simulated loop whose data hold every effect of a starting
 model plus ONE more, the hidden effect; the workbench starts from the model
 without it (``forward_select``, two steps). The grid: every effect the
 workbench suggests (stiction behind a dead band, a dead band behind a linear
-valve, dead time, lag, drift, saturation) x four parameter points across its
-range x an integrating and a self-regulating plant x two seeds. Each record:
+valve, dead time, lag, drift, saturation, an unmeasured sinusoidal load) x
+four parameter points across its range x an integrating and a self-regulating plant x two seeds. Each record:
 4.5 h at 1 s, PI control, set-point steps every 25-50 min, measurement noise
 of 1 % of the PV's swing on the recorded PV (the noise floor of the held-out
 RMSE).
@@ -47,6 +47,11 @@ GRID = {
                               dict(load_drift=2e-4), dict(load_drift=-4e-4)]),
     "saturation": (("deadband",), [dict(beyond=0.05), dict(beyond=0.1), dict(beyond=0.2),
                                    dict(beyond=0.3)]),
+    "oscillating_load": (("deadband",), [
+        dict(load_sin_amplitude=0.5, load_sin_period=120.0),
+        dict(load_sin_amplitude=1.0, load_sin_period=300.0),
+        dict(load_sin_amplitude=2.0, load_sin_period=900.0),
+        dict(load_sin_amplitude=4.0, load_sin_period=2400.0)]),
 }
 #: The valve of every case that does not hide a valve effect [% OP].
 DEADBAND = 3.0

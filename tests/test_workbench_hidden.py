@@ -36,13 +36,16 @@ TOL = {
     "lag": ("rel", 0.15),        # lag time constant within 15 %
     "load_offset": ("rel", 0.05),  # constant load (from the bias) within 5 %
     "load_drift": ("rel", 0.10),   # load ramp (from the drift) within 10 %
+    "load_period": ("rel", 0.01),  # period of an oscillating load within 1 %
+    "load_amplitude": ("rel", 0.10),  # its amplitude within 10 %
 }
 MIN_REDUCTION = 0.30
 #: PV, OP and SP -> OFFSET + SCALE * value in the shifted run
 OFFSET, SCALE = 50.0, 3.0
 #: How each truth maps under the shift: (scaled, offset) [-]
 UNITS = {"S": (True, False), "J": (True, False), "dead_time": (False, False),
-         "lag": (False, False), "load_offset": (True, True), "load_drift": (True, False)}
+         "lag": (False, False), "load_offset": (True, True), "load_drift": (True, False),
+         "load_period": (False, False), "load_amplitude": (True, False)}
 
 # (case, hidden effect, starting model, simulation overrides, truth, seed)
 CASES = [
@@ -64,6 +67,13 @@ CASES = [
     ("dead_time-c", "dead_time", ("deadband",), dict(dead_time=24.0, sample_time=2.0),
      dict(dead_time=24.0), 12),
     ("lag-c", "lag", ("deadband",), dict(lag=20.0, sample_time=2.0), dict(lag=20.0), 13),
+    # an unmeasured periodic load (a disturbance, not a valve fault)
+    ("oscillating_load-a", "oscillating_load", ("deadband",),
+     dict(load_sin_amplitude=1.0, load_sin_period=300.0),
+     dict(load_period=300.0, load_amplitude=1.0), 14),
+    ("oscillating_load-b", "oscillating_load", ("deadband",),
+     dict(load_sin_amplitude=2.0, load_sin_period=900.0, ti=90.0),
+     dict(load_period=900.0, load_amplitude=2.0), 15),
 ]
 
 

@@ -4,7 +4,7 @@ The named physical effects of the loop model, with their parameters.
 A loop model is the chain::
 
     OP -> valve (deadband | stiction, saturation) -> dead time -> lag
-       -> plant input minus load (bias, drift) -> plant (gain) -> PV
+       -> plant input minus load (bias, drift, oscillating load) -> plant (gain) -> PV
 
 Each effect is named by a string and can be added to or removed from the
 chain (as pvlib's ``ModelChain`` swaps named models). The plant gain is
@@ -124,6 +124,16 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "Slowly varying unmeasured load: a ramp plus a piecewise-linear random walk with a "
            "few knots (no constant term: that is 'bias').",
            "a ramp or slow wander in the rate error"),
+    Effect("oscillating_load", "load",
+           (Param("load_period", "s", "about the periodogram peaks of OP and PV (within 2 %), "
+                  "refined", "searched", "period of an unmeasured periodic load"),
+            Param("load_amplitude", "OP unit", "unbounded", "linear",
+                  "amplitude of its fundamental, from sine and cosine terms at the period and "
+                  "at three times its frequency (a square or triangular wave's first harmonics)")),
+           "Unmeasured periodic load (a neighbouring loop's cycle, a pump, a batch step): the "
+           "loop answers it with an OP that follows the load while the valve moves linearly. "
+           "It tells a disturbance from a valve fault.",
+           "a periodic residual at a period of its own, unrelated to the valve's reversals"),
 )}
 
 #: Names of the effects, in the order the chain applies them.

@@ -60,6 +60,8 @@ class Theta:
         Noise band of a Kano valve's actuator [OP unit]: a fall of the OP
         within it is not a reversal (:func:`valvediag.models.valves.valve_step`).
         Not searched: each fit holds it (see :class:`Problem`).
+    load_period : float
+        Period of an unmeasured oscillating load [s] (infinite: none).
     """
 
     DB: float = 0.0
@@ -72,6 +74,7 @@ class Theta:
     tau: float = 1.0
     phase: float = 0.0
     band: float = 0.0
+    load_period: float = math.inf
 
     def replace(self, **kw) -> "Theta":
         """Copy with some fields changed.
@@ -90,7 +93,12 @@ class Theta:
         return Theta(**d)
 
 
-def linear_columns(effects, data: LoopData, drift_knots: int):
+#: Harmonics of an oscillating load fitted (odd: a square or triangular wave
+#: has no even ones) [-].
+LOAD_HARMONICS = (1, 3)
+
+
+def linear_columns(effects, data: LoopData, drift_knots: int, load_period: float = math.inf):
     """Basis of the rate (integrating) or level (self-regulating) load.
 
     Returns
@@ -121,6 +129,11 @@ def linear_columns(effects, data: LoopData, drift_knots: int):
         for j, kn in enumerate(knots):
             cols.append(np.maximum(0.0, tau - kn))
             names.append(f"drift_knot_{j + 1}")
+    if "oscillating_load" in effects:
+        w = 2.0 * math.pi / load_period if math.isfinite(load_period) and load_period > 0 else 0.0
+        for k in LOAD_HARMONICS:
+            cols += [np.sin(k * w * t), np.cos(k * w * t)]
+            names += [f"load_sin_{k}", f"load_cos_{k}"]
     B = np.column_stack(cols) if cols else np.zeros((t.size, 0))
     return B, names, span, knots
 
@@ -174,7 +187,9 @@ class Problem:
         else:
             self.vcode, self.valve_model = LINEAR, "linear"
         B, names, span, knots = linear_columns(self.effects, data, self.drift_knots)
-        self.basis, self.lin_names, self.span, self.knots = B, names, span, knots
+        self.lin_names, self.span, self.knots = names, span, knots
+        self.oscillating = "oscillating_load" in self.effects
+        self._bases = {math.inf: B}
         self.p = B.shape[1]
         self._setups: dict = {}
         self._mats: dict = {}
@@ -185,6 +200,23 @@ class Problem:
         self.seg_id = d.seg_id
         self.n_train = int((self.sample_set == 0).sum())
         self.n_held = int((self.sample_set == 1).sum())
+
+    def basis(self, theta: Theta) -> np.ndarray:
+        """Load basis of a candidate (its columns depend on the load's period)."""
+        key = theta.load_period if self.oscillating else math.inf
+        B = self._bases.get(key)
+        if B is None:
+            B = linear_columns(self.effects, self.data, self.drift_knots, key)[0]
+            if len(self._bases) > 64:
+                self._bases.clear()
+            self._bases[key] = B
+        return B
+
+    def group(self, theta: Theta) -> tuple:
+        """Candidates of one group share the linear part (plant time constant,
+        load period)."""
+        return (theta.tau if self.process_type == "self-regulating" else 0.0,
+                theta.load_period if self.oscillating else 0.0)
 
     # -- the plant-dependent linear part ------------------------------------------------
     def qa(self, theta: Theta) -> float:
@@ -236,14 +268,14 @@ class Problem:
 
     def setup(self, theta: Theta):
         """Projected load columns, projected PV and their inner products."""
-        key = theta.tau if self.process_type == "self-regulating" else 0.0
+        key = self.group(theta)
         st = self._setups.get(key)
         if st is not None:
             return st
         qa = self.qa(theta)
         y = np.where(self.sample_set >= 0, self.data.pv, 0.0)
         Py = self.project(np.nan_to_num(y), qa)
-        W = self.project(self.plant_filter(self.basis, theta), qa) if self.p else \
+        W = self.project(self.plant_filter(self.basis(theta), theta), qa) if self.p else \
             np.zeros((self.data.n, 0))
         ystats = np.zeros((2, 1 + self.p))
         G2 = np.zeros((2, self.p, self.p))
@@ -316,8 +348,7 @@ class Problem:
         out = np.empty((len(thetas), 3 + self.p))
         groups: dict = {}
         for i, th in enumerate(thetas):
-            key = th.tau if self.process_type == "self-regulating" else 0.0
-            groups.setdefault(key, []).append(i)
+            groups.setdefault(self.group(th), []).append(i)
         d = self.data
         for key, idx in groups.items():
             st = self.setup(thetas[idx[0]])
@@ -352,7 +383,7 @@ class Problem:
         gain = float(coef[0])
         lin = dict(zip(self.lin_names, map(float, coef[1:])))
         # load signal in OP units (rate or level divided by the gain)
-        beta = self.basis @ coef[1:] if self.p else np.zeros(n)
+        beta = self.basis(theta) @ coef[1:] if self.p else np.zeros(n)
         load = -beta / gain if gain != 0 else np.full(n, np.nan)
         lagged = z if "lag" in self.effects else xd
         pv_model = np.where(used, d.pv - e, np.nan)
@@ -452,6 +483,41 @@ def tau_range(data: LoopData) -> tuple[float, float]:
     return h, max(5 * _period(data), 10 * h)
 
 
+def load_periods(data: LoopData, k: int = 2) -> np.ndarray:
+    """Candidate periods of an oscillating load [s]: the ``k`` highest peaks
+    of the periodograms of the OP and of the PV (linear trend removed),
+    between four samples and half the record, highest first.
+
+    A load that drives the loop shows in both: in the PV, and in the OP
+    that answers it. The periodogram's resolution is one cycle per record,
+    so a peak's period is known to about ``period / record`` of itself;
+    the fit refines it.
+    """
+    key = ("load_periods", k)
+    if key in data._cache:
+        return data._cache[key]
+    h, n = data.sample_time, data.n
+    out: list[float] = []
+    for x in (data.op, data.pv):
+        y = np.nan_to_num(np.asarray(x, dtype=float) - np.nanmean(x))
+        t = np.arange(n)
+        y = y - np.polyval(np.polyfit(t, y, 1), t)
+        p = np.abs(np.fft.rfft(y)) ** 2
+        f = np.fft.rfftfreq(n, h)
+        ok = (f > 2.0 / (n * h)) & (f < 1.0 / (4.0 * h))
+        idx = np.flatnonzero(ok)
+        if idx.size < 3:
+            continue
+        pk = idx[1:-1][(p[idx[1:-1]] >= p[idx[:-2]]) & (p[idx[1:-1]] >= p[idx[2:]])]
+        for i in pk[np.argsort(p[pk])[::-1][:k]]:
+            period = 1.0 / f[i]
+            if all(abs(period / q - 1.0) > 0.02 for q in out):
+                out.append(float(period))
+    res = np.array(out[:2 * k] or [4.0 * h * 10])
+    data._cache[key] = res
+    return res
+
+
 def _grid(prob: Problem, coarse: bool):
     """The grid of one searched stage at a time, as lists of field dicts."""
     d = prob.data
@@ -472,6 +538,9 @@ def _grid(prob: Problem, coarse: bool):
         lows = np.r_[-np.inf, np.percentile(op, q)]
         highs = np.r_[np.percentile(op, 100 - q[::-1]), np.inf]
         axes.append([dict(sat_low=float(a), sat_high=float(b)) for a in lows for b in highs])
+    if prob.oscillating:
+        rel = np.linspace(-0.02, 0.02, 3 if coarse else 9)
+        axes.append([dict(load_period=float(q * (1.0 + r))) for q in load_periods(d) for r in rel])
     if "dead_time" in prob.effects:
         dmax = max_delay(d)
         k = 12 if coarse else int(dmax) + 1
@@ -601,7 +670,8 @@ def initial_theta(prob: Problem) -> Theta:
     return Theta(DB=0.3 * d.band_max, S=0.3 * d.band_max, J=0.15 * d.band_max,
                  sat_low=-math.inf, sat_high=math.inf, delay=0.0,
                  lag=float(max(0.05 * P, h)), tau=float(max(P / 4, 2 * h)),
-                 band=prob.noise_band)
+                 band=prob.noise_band,
+                 load_period=float(load_periods(d)[0]) if prob.oscillating else math.inf)
 
 
 def _distinct_starts(cands, scores, k):
@@ -613,7 +683,7 @@ def _distinct_starts(cands, scores, k):
     for i in order:
         c = cands[i]
         key = (round(c.delay, 3), round(c.lag, 6), round(c.tau, 6), c.sat_low, c.sat_high,
-               round(4 * c.J / c.S) if c.S > 0 else 0)
+               round(4 * c.J / c.S) if c.S > 0 else 0, round(c.load_period, 6))
         if key in seen:
             continue
         seen.add(key)
@@ -663,7 +733,7 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
     # the grid's stages run from the cold start and from the warm one: from a
     # smaller model's optimum alone they can stay in its valley (a dead time
     # that stood in for a slip jump)
-    origins = [initial_theta(prob)] + ([start] if start is not None else [])
+    origins = [initial_theta(prob)] + ([prob_clip(prob, start)] if start is not None else [])
     axes = _grid(prob, coarse=True)
     pool_c, pool_s = [], []
     best_grid = (np.inf, origins[-1])
@@ -686,14 +756,14 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
                 best_grid = (f, theta)
     theta = best_grid[1]
     names, _, _ = _continuous(prob, theta)
-    if not names:
+    if not names and not prob.oscillating:
         return theta
     starts_ = _distinct_starts(pool_c, np.array(pool_s), starts) if pool_c else [theta]
     if start is not None and start not in starts_:
         starts_.append(prob_clip(prob, start))
     fev = maxfev or 40 * len(names) + 20
     best, fb = None, np.inf
-    for s0 in starts_:
+    for s0 in starts_ if names else [theta]:
         th, f = _refine(prob, s0, fev)
         if f < fb:
             best, fb = th, f
@@ -702,6 +772,13 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
         for a in ax:
             if "sat_low" in a[0]:
                 best, fb, _, _ = _best(prob, [best.replace(**x) for x in a], current=best)
+    if prob.oscillating:
+        # the load's period on ever finer grids about the best (each period
+        # needs its own load basis, too dear for every step of the simplex)
+        for rel in (0.005, 0.001, 0.0002):
+            q = best.load_period * (1.0 + np.linspace(-rel, rel, 11))
+            best, fb, _, _ = _best(prob, [best.replace(load_period=float(v)) for v in q],
+                                   current=best)
     if prob.vcode == KANO:
         best = _cliff_guard(prob, best, fb)
     return best
@@ -766,5 +843,9 @@ def _cliff_guard(prob: Problem, theta: Theta, f_best: float) -> Theta:
 
 
 def prob_clip(prob: Problem, theta: Theta) -> Theta:
-    """Keep a warm start inside the searched ranges."""
-    return theta.replace(delay=float(min(theta.delay, max_delay(prob.data))))
+    """Keep a warm start inside the searched ranges (and give it a load
+    period where the model has an oscillating load and the start none)."""
+    theta = theta.replace(delay=float(min(theta.delay, max_delay(prob.data))))
+    if prob.oscillating and not math.isfinite(theta.load_period):
+        theta = theta.replace(load_period=float(load_periods(prob.data)[0]))
+    return theta

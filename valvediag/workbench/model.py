@@ -34,7 +34,7 @@ from ..models.valves import HE, KANO
 from ..plain import finite_or_none
 from .data import LoopData, shade_heldout
 from .effects import EFFECTS, PLANT_PARAMS, check_effects
-from .fit import PROCESS_TYPES, Problem, Theta, search
+from .fit import LOAD_HARMONICS, PROCESS_TYPES, Problem, Theta, search
 
 __all__ = ["LoopModel", "ModelFit", "fit_model"]
 
@@ -491,9 +491,13 @@ def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
         derived["load_drift"] = -params["drift"] / g if g else math.nan
         derived["drift_knots"] = int(len(knots))
         k += 1 + len(knots)
+    if "oscillating_load" in eff:
+        params["load_period"], units["load_period"] = th.load_period, "s"
+        amp = math.hypot(lin["load_sin_1"], lin["load_cos_1"])
+        derived["load_amplitude"] = amp / abs(g) if g else math.nan
+        units["load_amplitude"] = "OP unit"
+        k += 1 + 2 * len(LOAD_HARMONICS)
     load = np.nan_to_num(ev["load"]) if prob.p else np.zeros(d.n)
-    if "bias" not in eff and "drift" not in eff:
-        load = np.zeros(d.n)
     fit_he = 100.0 * (1.0 - math.sqrt(sse_he / y0_he)) if y0_he > 0 else math.nan
     fit_tr = 100.0 * (1.0 - math.sqrt(sse_tr / y0_tr)) if y0_tr > 0 else math.nan
     bic = n_tr * math.log(max(sse_tr, 1e-300) / n_tr) + k * math.log(n_tr)

@@ -219,6 +219,21 @@ def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -
         return Evidence(sig, float(max(stat, 0.0)),
                         f"residual RMS in the {a2.size} segments near the OP extremes is "
                         f"{ratio:.2f} times that of the other {b2.size}")
+    if effect == "oscillating_load":
+        # the residual's periodogram (unscored samples as zeros): its highest
+        # peak against the median ordinate, which for white noise is
+        # exponential (a peak of 20 times the median is rare among a few
+        # thousand ordinates)
+        y = np.nan_to_num(e)
+        pw = np.abs(np.fft.rfft(y - y.mean())) ** 2
+        f = np.fft.rfftfreq(y.size, h)
+        ok = (f > 2.0 / (y.size * h)) & (f < 1.0 / (4.0 * h))
+        if ok.sum() < 8:
+            return Evidence(sig, 0.0, "record too short for a periodogram")
+        i = int(np.flatnonzero(ok)[np.argmax(pw[ok])])
+        ratio = float(pw[i] / np.median(pw[ok]))
+        return Evidence(sig, ratio, f"the residual's periodogram peaks at a period of "
+                                    f"{1.0 / f[i]:.0f} s, {ratio:.0f} times its median")
     raise ValueError(f"unknown effect {effect!r}")
 
 
@@ -472,6 +487,8 @@ def _is_null(effect: str, fit: ModelFit, base: ModelFit) -> bool:
         return p["lag"] < 0.05 * h
     if effect == "saturation":
         return not (math.isfinite(p["sat_low"]) or math.isfinite(p["sat_high"]))
+    if effect == "oscillating_load":
+        return not fit.derived.get("load_amplitude", 0.0) > 0.0
     if effect == "deadband":
         return p["DB"] < 1e-6 * fit.data.band_max
     if effect == "stiction":
