@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.signal import lfilter
+from scipy.signal import lfilter, periodogram
 
 from ..models.closedloop import process_matrices
 from ..models.valves import BACKLASH, HE, KANO, LINEAR
@@ -500,10 +500,7 @@ def load_periods(data: LoopData, k: int = 2) -> np.ndarray:
     out: list[float] = []
     for x in (data.op, data.pv):
         y = np.nan_to_num(np.asarray(x, dtype=float) - np.nanmean(x))
-        t = np.arange(n)
-        y = y - np.polyval(np.polyfit(t, y, 1), t)
-        p = np.abs(np.fft.rfft(y)) ** 2
-        f = np.fft.rfftfreq(n, h)
+        f, p = periodogram(y, fs=1.0 / h, detrend="linear")
         ok = (f > 2.0 / (n * h)) & (f < 1.0 / (4.0 * h))
         idx = np.flatnonzero(ok)
         if idx.size < 3:

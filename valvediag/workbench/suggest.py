@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import periodogram
 
 from ..plain import finite_or_none
 from .data import LoopData, prepare_loop
@@ -225,8 +226,7 @@ def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -
         # exponential (a peak of 20 times the median is rare among a few
         # thousand ordinates)
         y = np.nan_to_num(e)
-        pw = np.abs(np.fft.rfft(y - y.mean())) ** 2
-        f = np.fft.rfftfreq(y.size, h)
+        f, pw = periodogram(y, fs=1.0 / h)
         ok = (f > 2.0 / (y.size * h)) & (f < 1.0 / (4.0 * h))
         if ok.sum() < 8:
             return Evidence(sig, 0.0, "record too short for a periodogram")
