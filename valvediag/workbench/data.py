@@ -13,11 +13,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import periodogram
 
 from ..analysis.quality import despike, white_noise_std
 from .kernels import nudge_holds, turning_points
 
-__all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "white_noise_std",
+__all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "white_noise_std", "periodogram_band",
            "rebuild_compressed_op", "stored_points"]
 
 #: Fewest segments a record must give (training plus held-out).
@@ -334,6 +335,30 @@ def rebuild_compressed_op(pv, op, sample_time: float, sp=None) -> tuple[np.ndarr
     rebuilt = op[a] + law(t) + frac * (op[b] - op[a] - law(b))
     rebuilt[k] = op[k]
     return rebuilt, r2
+
+
+def periodogram_band(y, sample_time: float, detrend="constant"):
+    """Periodogram of ``y`` between two cycles per record and four samples per
+    cycle (the periods a record can show as a cycle).
+
+    Parameters
+    ----------
+    y : numpy.ndarray
+        Uniformly sampled signal, no NaN.
+    sample_time : float
+        [s]
+    detrend : {'constant', 'linear'}
+        Passed to :func:`scipy.signal.periodogram`.
+
+    Returns
+    -------
+    f, p : numpy.ndarray
+        Frequencies [Hz] and power spectral density [unit^2/Hz].
+    """
+    h, n = float(sample_time), y.size
+    f, p = periodogram(y, fs=1.0 / h, detrend=detrend)
+    ok = (f > 2.0 / (n * h)) & (f < 1.0 / (4.0 * h))
+    return f[ok], p[ok]
 
 
 def _refuse_diverging(y, ok, label: str):

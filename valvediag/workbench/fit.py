@@ -18,12 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.signal import lfilter, periodogram
+from scipy.signal import lfilter
 
 from ..models.closedloop import process_matrices
 from ..models.valves import BACKLASH, HE, KANO, LINEAR
 from . import kernels
-from .data import LoopData
+from .data import LoopData, periodogram_band
 from .effects import check_effects
 
 __all__ = ["Theta", "Problem", "search", "linear_columns"]
@@ -496,16 +496,14 @@ def load_periods(data: LoopData, k: int = 2) -> np.ndarray:
     key = ("load_periods", k)
     if key in data._cache:
         return data._cache[key]
-    h, n = data.sample_time, data.n
+    h = data.sample_time
     out: list[float] = []
     for x in (data.op, data.pv):
         y = np.nan_to_num(np.asarray(x, dtype=float) - np.nanmean(x))
-        f, p = periodogram(y, fs=1.0 / h, detrend="linear")
-        ok = (f > 2.0 / (n * h)) & (f < 1.0 / (4.0 * h))
-        idx = np.flatnonzero(ok)
-        if idx.size < 3:
+        f, p = periodogram_band(y, h, detrend="linear")
+        if f.size < 3:
             continue
-        pk = idx[1:-1][(p[idx[1:-1]] >= p[idx[:-2]]) & (p[idx[1:-1]] >= p[idx[2:]])]
+        pk = 1 + np.flatnonzero((p[1:-1] >= p[:-2]) & (p[1:-1] >= p[2:]))
         for i in pk[np.argsort(p[pk])[::-1][:k]]:
             period = 1.0 / f[i]
             if all(abs(period / q - 1.0) > 0.02 for q in out):

@@ -110,7 +110,7 @@ class LoopModel:
 
     def __post_init__(self):
         # the operating point is part of every model
-        eff = check_effects(tuple(check_effects(self.effects)) + ("bias",))
+        eff = check_effects(check_effects(self.effects) + ("bias",))
         if "stiction" in eff and "deadband" in eff:
             eff = tuple(e for e in eff if e != "deadband")
         object.__setattr__(self, "effects", eff)
@@ -495,7 +495,6 @@ def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
         params["load_period"], units["load_period"] = th.load_period, "s"
         amp = math.hypot(lin["load_sin_1"], lin["load_cos_1"])
         derived["load_amplitude"] = amp / abs(g) if g else math.nan
-        units["load_amplitude"] = "OP unit"
         k += 1 + 2 * len(LOAD_HARMONICS)
     load = np.nan_to_num(ev["load"]) if prob.p else np.zeros(d.n)
     fit_he = 100.0 * (1.0 - math.sqrt(sse_he / y0_he)) if y0_he > 0 else math.nan

@@ -16,10 +16,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import periodogram
 
 from ..plain import finite_or_none
-from .data import LoopData, prepare_loop
+from .data import LoopData, periodogram_band, prepare_loop
 from .diagnosis import Z99, Diagnosis, event_average, residual_ccf
 from .effects import EFFECTS, check_effects
 from .model import LoopModel, ModelFit
@@ -225,13 +224,11 @@ def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -
         # peak against the median ordinate, which for white noise is
         # exponential (a peak of 20 times the median is rare among a few
         # thousand ordinates)
-        y = np.nan_to_num(e)
-        f, pw = periodogram(y, fs=1.0 / h)
-        ok = (f > 2.0 / (y.size * h)) & (f < 1.0 / (4.0 * h))
-        if ok.sum() < 8:
+        f, pw = periodogram_band(np.nan_to_num(e), h)
+        if f.size < 8:
             return Evidence(sig, 0.0, "record too short for a periodogram")
-        i = int(np.flatnonzero(ok)[np.argmax(pw[ok])])
-        ratio = float(pw[i] / np.median(pw[ok]))
+        i = int(np.argmax(pw))
+        ratio = float(pw[i] / np.median(pw))
         return Evidence(sig, ratio, f"the residual's periodogram peaks at a period of "
                                     f"{1.0 / f[i]:.0f} s, {ratio:.0f} times its median")
     raise ValueError(f"unknown effect {effect!r}")
