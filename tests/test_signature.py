@@ -177,6 +177,38 @@ def test_slips_back_towards_the_set_point_are_stick_slip_events():
     assert d.verdict == "stiction" and "stick-slip events" in d.reason
 
 
+def _takeup_record(n_events=6, seed=5):
+    """A flow loop at set point 50 with a loose valve: after each reversal the
+    OP creeps 1 % through the dead band while the load pulls the PV 1.0 away;
+    then the valve takes up and the PV comes back over 20 s as the OP moves on
+    by another 1 %, with no jump."""
+    rng = np.random.default_rng(seed)
+    pv, op, out = [], [], 40.0
+    for i in range(n_events):
+        side = 1.0 if i % 2 else -1.0
+        pv.append(np.linspace(50.0, 50.0 + side, 300))     # in the dead band
+        op.append(out - np.linspace(0, side, 300))
+        pv.append(np.linspace(50.0 + side, 50.0, 20))       # taken up: PV follows the OP
+        op.append(out - side - np.linspace(0, side, 20))
+        pv.append(np.full(180, 50.0))
+        op.append(np.full(180, out - 2 * side))
+        out -= 2 * side
+    pv = np.concatenate(pv) + rng.normal(0, 0.02, 500 * n_events)
+    op = np.concatenate(op) + rng.normal(0, 0.01, 500 * n_events)
+    return pv, op, np.full(pv.size, 50.0)
+
+
+def test_slips_are_told_from_dead_band_take_ups_by_the_op_during_the_jump():
+    pv, op, sp = _slip_record()
+    e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp)
+    assert e.kind == "stiction" and e.slips >= 4 and e.takeups == 0, e.reason
+    pv, op, sp = _takeup_record()
+    e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp)
+    assert e.found and e.kind == "backlash" and e.takeups >= 4 and e.slips == 0, e.reason
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="self-regulating")
+    assert d.verdict == "backlash" and "dead-band take-ups" in d.reason, d.reason
+
+
 def test_load_steps_away_from_the_set_point_are_not_slips():
     pv, op, sp = _slip_record(towards_sp=False)
     e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp)

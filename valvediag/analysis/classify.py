@@ -6,9 +6,11 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
 
 1. ``insufficient-data``: too little usable data (gaps, a frozen PV, too few
    cycles, too few samples per cycle); the reason says which.
-2. ``no-oscillation``: no regular oscillation, and no stick-slip events
+2. ``no-oscillation``: no regular oscillation, and no valve events
    (:func:`valvediag.analysis.signature.stick_slip_events`: a sticky valve
-   without a limit cycle gets ``stiction`` from its slips).
+   without a limit cycle gets ``stiction`` from its slips, a loose one
+   ``backlash`` from its dead-band take-ups; the events are also read on a
+   self-regulating loop whose cycle the valve signature cannot explain).
 3. ``linear-oscillation``: a regular oscillation that no valve nonlinearity
    explains (tuning or an external disturbance); send no one to the valve.
    A sinusoidal PV, an OP that stands still, or a valve position implied by
@@ -469,8 +471,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         quiet = ("no-oscillation", 0.6 + 0.3 * min(1.0, max(0.0, 1.0 - osc.regularity)),
                  f"no regular oscillation (regularity {osc.regularity:.2f}, "
                  f"autocorrelation at one period {osc.acf_at_period:.2f})")
-    def slips_or(v, conf, reason):
-        """No limit cycle to judge: a sticky valve may still show itself by its slips."""
+    def valve_events():
+        """A sticky or loose valve shown by its slips or take-ups, or None."""
         ev_sp = sp[a:b] if sp is not None else None
         kinds = (process_type,) if process_type != "unknown" else \
             ("self-regulating", "integrating")
@@ -479,11 +481,17 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             if slips.found:
                 ev.update(stick_slip=slips.as_dict(), process_screen=kind)
                 src = "loop registry" if process_type != "unknown" else "assumed"
-                return verdict("stiction", 0.5 + 0.4 * min(1.0, slips.consistent / 10.0),
-                               f"stick-slip events without a limit cycle: {slips.reason} "
-                               f"({kind} process, {src}); method: stick-slip events",
-                               **common)
-        return verdict(v, conf, reason, **common)
+                what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
+                        }.get(slips.kind, "valve events")
+                conf = 0.5 + 0.4 * min(1.0, slips.consistent / 10.0)
+                return verdict(slips.kind, conf if slips.kind != "undecided" else 0.6 * conf,
+                               f"{what}: {slips.reason} ({kind} process, {src}); method: "
+                               "stick-slip events", **common)
+        return None
+
+    def slips_or(v, conf, reason):
+        """No limit cycle to judge: a sticky valve may still show itself by its slips."""
+        return valve_events() or verdict(v, conf, reason, **common)
 
     if quiet is not None:
         return slips_or(*quiet)
@@ -521,8 +529,11 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         src = "loop registry" if process_type == "self-regulating" else \
             (f"data test: the PV does not run in straight ramps (curvature "
              f"{sev['ramp_curvature']:.3f}, ramp share {sev['ramp_share']:.2f})")
-        return _self_regulating_verdict(verdict, x, u, h, osc, src, c_data, ev,
-                                        process_screen=pscreen, shape=shape, **common)
+        d = _self_regulating_verdict(verdict, x, u, h, osc, src, c_data, ev,
+                                     process_screen=pscreen, shape=shape, **common)
+        # a valve the signature cannot read in the cycle may still show its events
+        return d if d.verdict in ("stiction", "backlash", "undecided") else \
+            (valve_events() or d)
     if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR:
         conf = c_data * proc_conf * (0.5 + 0.5 * (1.0 - shape.pv_distortion / DIST_LINEAR))
         return verdict("linear-oscillation", conf,

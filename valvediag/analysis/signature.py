@@ -631,21 +631,33 @@ class StickSlipEvents:
         ``'integrating'`` (slips of the PV slope) or ``'self-regulating'``
         (slips of the PV).
     found : bool
-        Enough slips, enough of them in the direction the OP had been moving.
+        A valve fault: enough jumps, and enough of them valve events (slips
+        or take-ups).
     reason : str
         One sentence.
     events : int
-        Jumps of the PV (or its slope) beyond six noise standard deviations
-        that the OP did not make.
+        Jumps of the PV (or its slope) beyond six noise standard deviations.
     consistent : int
-        Of those, slips: the OP had moved towards the jump by more than its
-        noise band over the half of the stretch before it, while the PV
-        stayed within a third of the jump.
+        Of those, valve events: the OP had moved towards the jump by more
+        than its noise band over the half of the stretch before it, while
+        the PV held; ``slips + takeups``.
+    slips : int
+        Of the valve events, those during which the OP stood or moved back
+        (the controller answering a jump it did not make): a sticky valve.
+    takeups : int
+        Of the valve events, those during which the OP moved on, by more
+        than :data:`TAKEUP_OP` noise bands, in the direction it had crept:
+        a valve taking up a dead band and then following the OP.
+    kind : str
+        ``'stiction'`` (at least two thirds of the valve events are slips),
+        ``'backlash'`` (at least two thirds are take-ups), ``'undecided'``
+        or ``''`` when no fault was found.
     op_travel : float
-        Median OP travel before a slip [OP unit]: about the slip jump ``J``
-        (after a rest) or the stick band ``S`` (after a reversal).
+        Median OP travel before a valve event [OP unit]: about the slip jump
+        ``J`` (after a rest) or a lower bound of the stick band ``S`` or dead
+        band (after a reversal).
     index : numpy.ndarray
-        Sample index of each slip.
+        Sample index of each valve event.
     step : int
         Samples over which a jump was measured.
     """
@@ -655,6 +667,9 @@ class StickSlipEvents:
     reason: str
     events: int = 0
     consistent: int = 0
+    slips: int = 0
+    takeups: int = 0
+    kind: str = ""
     op_travel: float = math.nan
     index: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
     step: int = 1
@@ -664,7 +679,8 @@ class StickSlipEvents:
 
     def as_dict(self) -> dict:
         """The figures as plain types."""
-        return {"found": self.found, "events": self.events, "consistent": self.consistent,
+        return {"found": self.found, "kind": self.kind, "events": self.events,
+                "consistent": self.consistent, "slips": self.slips, "takeups": self.takeups,
                 "op_travel": None if not math.isfinite(self.op_travel)
                 else round(float(self.op_travel), 4), "step": self.step}
 
@@ -694,14 +710,19 @@ class StickSlipEvents:
         return ax
 
 
-#: Fewest slips, and the least share of the PV's jumps that must be slips.
+#: Fewest valve events, and the least share of the PV's jumps that must be valve events.
 MIN_SLIPS = 3
 MIN_SLIP_SHARE = 0.75
+#: OP travel during a jump, in the direction the OP had crept [noise bands],
+#: beyond which the jump is a take-up (the valve driven by the OP), not a slip.
+TAKEUP_OP = 2.0
+#: Share of the valve events of one kind that names the fault.
+KIND_SHARE = 2.0 / 3.0
 
 
 def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
                       ) -> StickSlipEvents:
-    """Find a sticky valve by its slips: the error grows, the OP creeps, the PV jumps back.
+    """Find a sticky or loose valve by its events: the error grows, the OP creeps, the PV returns.
 
     Parameters
     ----------
@@ -738,13 +759,27 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     step moves the set point first, so neither counts. This needs no process
     gain or controller sign: in a working loop the correction always points
     back to the set point. The jump is measured over 2, 8 or 32 samples (the
-    step that finds the most slips), which covers process lags up to about
-    30 samples.
+    shortest step at which the valve events make a fault, else the step that
+    finds the most), which covers process lags up to about 30 samples. A
+    jump within ``2 L`` samples of the last one continues it (an overshoot,
+    a jump split by noise) and is neither counted nor against.
+
+    A loose valve holds too, inside its dead band, and then moves the PV back
+    as fast as the OP drives it. What tells the two apart is the OP *during*
+    the PV's move (from one step before to one step after): a slip is the
+    valve's own jump, so the OP stands, or moves back as the controller's
+    proportional action answers the PV; a take-up is the valve following the
+    OP, so the OP moves on in the direction it had crept, by more than
+    :data:`TAKEUP_OP` noise bands. Two thirds of the valve events of one kind
+    name the fault; a mix is ``'undecided'``.
 
     It fails where a valve's slips are smaller than six noise standard
     deviations of the PV (or its slope), where a slow process spreads a
-    slip over more than 32 samples, on a loose valve (a dead band makes no
-    jump), and where the set point is missing and moves.
+    slip over more than 32 samples, where the OP moves too slowly for a
+    take-up to make a jump (a loose valve behind slow integral action shows
+    no event), and where the set point is missing and moves. A sticky valve
+    with a small slip jump after a large stick band is followed, within the
+    step, by the OP's own motion and may read as a mix.
     """
     if process not in ("integrating", "self-regulating"):
         raise ValueError(f"process must be 'integrating' or 'self-regulating', not {process!r}")
@@ -776,30 +811,51 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     for L in steps:
         found = _slips(y, op, err, sp, L, 6.0 * noise * math.sqrt(2.0), band,
                        3.0 * pv_noise, process == "integrating")
-        if found is not None and (best is None or found[1].sum() > best[1][1].sum()):
-            best = (L, found)
+        if found is None or found[0].size == 0:
+            continue
+        n_ok = int(found[1].sum())
+        # the shortest step that shows a fault; else the one with the most valve events
+        if best is None or (n_ok > best[2] and not best[3]):
+            best = (L, found, n_ok, n_ok >= MIN_SLIPS and n_ok / found[0].size >= MIN_SLIP_SHARE)
     if best is None:
         return StickSlipEvents(found=False, reason="no jump of the PV beyond its noise",
                                **base)
-    L, (idx, ok, travel) = best
-    n_ok = int(ok.sum())
-    share = n_ok / idx.size
-    is_sticky = n_ok >= MIN_SLIPS and share >= MIN_SLIP_SHARE
+    L, (idx, ok, travel, on), n_ok, is_fault = best
+    slip = ok & (on <= TAKEUP_OP * band)
+    n_slip, n_take = int(slip.sum()), int((ok & ~slip).sum())
     op_travel = float(np.median(travel[ok])) if n_ok else math.nan
+    kind = ""
+    if is_fault:
+        kind = ("stiction" if n_slip >= KIND_SHARE * n_ok else
+                "backlash" if n_take >= KIND_SHARE * n_ok else "undecided")
     what = "slope of the PV" if process == "integrating" else "PV"
-    if is_sticky:
-        reason = (f"{n_ok} of {idx.size} jumps of the {what} are slips: each time the error grew "
-                  f"while the OP crept about {op_travel:.2g} %, then the {what} jumped back "
-                  "towards the set point")
+    counts = (f"{n_ok} of {idx.size} jumps of the {what} are valve events ({n_slip} slips, "
+              f"{n_take} take-ups)")
+    if kind == "stiction":
+        reason = (f"{counts}: each time the error grew while the OP crept about "
+                  f"{op_travel:.2g} %, then the {what} jumped back towards the set point "
+                  "while the OP stood or moved back")
+    elif kind == "backlash":
+        reason = (f"{counts}: each time the error grew while the OP crept about "
+                  f"{op_travel:.2g} %, then the {what} moved back towards the set point only "
+                  "as the OP moved on: the valve takes up a dead band and follows, no jump")
+    elif kind == "undecided":
+        reason = f"{counts}: a valve that holds and then moves, sticky or loose cannot be told"
     else:
-        reason = (f"{n_ok} of {idx.size} jumps of the {what} are slips (need {MIN_SLIPS} and "
-                  f"{100 * MIN_SLIP_SHARE:.0f}% of them)")
-    return StickSlipEvents(found=is_sticky, reason=reason, events=int(idx.size),
-                           consistent=n_ok, op_travel=op_travel, index=idx[ok], step=L, **base)
+        reason = (f"{n_ok} of {idx.size} jumps of the {what} are valve events (need "
+                  f"{MIN_SLIPS} and {100 * MIN_SLIP_SHARE:.0f}% of them)")
+    return StickSlipEvents(found=is_fault, reason=reason, events=int(idx.size),
+                           consistent=n_ok, slips=n_slip, takeups=n_take, kind=kind,
+                           op_travel=op_travel, index=idx[ok], step=L, **base)
 
 
 def _slips(y, op, err, sp, L, thr, band, err_min, integrating):
-    """Jumps of ``y`` over ``L`` samples beyond ``thr``: (index, is-slip, OP travel) or None."""
+    """Jumps of ``y`` over ``L`` samples beyond ``thr``, or None.
+
+    Returns (index, is a valve event, OP travel before it, OP travel during
+    it in the direction of the travel before it) of the jumps with a stretch
+    of at least ``2 L`` samples since the last one (a jump hard on another
+    continues it and is not judged)."""
     d = y[L:] - y[:-L]
     big = np.abs(np.nan_to_num(d)) > thr
     if not big.any():
@@ -811,13 +867,16 @@ def _slips(y, op, err, sp, L, thr, band, err_min, integrating):
     n = y.size
     prev = np.r_[0, idx[:-1] + L]
     travel = np.zeros(idx.size)
+    on = np.zeros(idx.size)
     ok = np.zeros(idx.size, bool)
+    judged = np.zeros(idx.size, bool)
     sp_tol = max(err_min, 1e-12)
     for i, (k, p) in enumerate(zip(idx, prev)):
         # the stretch the valve held over: the later half since the last jump
         a = max(p, k - max(2 * L, (k - p) // 2))
         if k - a < 2 * L:
-            continue
+            continue      # a jump hard on the last one continues it: not judged
+        judged[i] = True
         q = max(2, min(L, (k - a) // 4))
         e_start = float(np.mean(err[a:a + q]))
         e_before = float(np.mean(err[k - q:k + 1]))
@@ -835,4 +894,7 @@ def _slips(y, op, err, sp, L, thr, band, err_min, integrating):
             # the PV closes part of the error, it does not overshoot far past it
             towards = towards and abs(d[k]) <= 3.0 * abs(e_before) + err_min
         ok[i] = sp_still and abs(travel[i]) > band and grew and towards and held
-    return idx, ok, np.abs(travel)
+        # the OP over the jump (one step either side: a process's dead time
+        # puts the OP that drives a take-up before the PV's move)
+        on[i] = (op[min(n - 1, k + L)] - op[max(0, k - L)]) * np.sign(travel[i])
+    return idx[judged], ok[judged], np.abs(travel[judged]), on[judged]
