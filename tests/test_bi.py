@@ -159,3 +159,43 @@ def test_result_parts_and_plot():
     ax = r.plot(zoom_cycles=3)
     assert "stiction" in ax.get_title()
     assert len(ax.get_lines()) > 5
+
+
+def _lagged(x, h, tau):
+    """``x`` through a first-order lag ``tau`` [s], started at its steady state."""
+    from scipy.signal import lfilter
+
+    a = np.exp(-h / tau)
+    return lfilter([1 - a], [1, -a], x, zi=[a * x[0]])[0]
+
+
+def test_lagged_turns_find_the_sharp_turn_behind_a_lag():
+    from valvediag.analysis.bi import lagged_turns
+    from valvediag.analysis.classify import sharp_behind_lag
+
+    h, P, tau = 1.0, 500.0, 15.0                   # a lag of 3 % of the period
+    t = np.arange(12000) * h
+    r = backlash_index(_lagged(triangle(t, P), h, tau), h)
+    assert r.verdict == "backlash"                  # what the lag does to the BI
+    turns = lagged_turns(r)
+    assert turns.lag == pytest.approx(tau, rel=0.3)   # lag grid ~30 % apart
+    assert turns.bi <= 1.2 and turns.bi_without_lag > 2.4 and sharp_behind_lag(turns)
+    ax = turns.plot()
+    assert len(ax.lines) == 3
+
+
+def test_a_lag_behind_a_sticky_valve_puts_a_doubt_on_the_backlash_index():
+    from valvediag import classify_loop
+
+    # a level loop with a 10 s lag between a sticky valve and the PV (2 % of
+    # the period), 1 % noise: the BI reads backlash, and the verdict says
+    # that the turns may be a lag's, at a lower confidence
+    sim = simulate_loop(sample_time=0.5, n_samples=43200, sp=50.0, process="integrating",
+                        tau=200.0, kc=2.0, ti=300.0, load=50.0, lag=10.0, valve="kano",
+                        valve_params={"S": 3.0, "J": 2.4}, sp_step=1.0, sp_step_time=60.0)
+    pv, op = sim.pv[7200::2], sim.op[7200::2]
+    pv = pv + np.random.default_rng(0).normal(0, 0.01 * np.ptp(pv), pv.size)
+    d = classify_loop(pv, op, sample_time=1.0, process_type="integrating")
+    assert d.verdict == "backlash" and "may stick instead" in d.reason, d.reason
+    lt = d.evidence["lagged_turns"]
+    assert lt["lag_s"] == pytest.approx(10.0, rel=0.35) and lt["bi"] <= 1.5

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bi import THRESHOLDS, BacklashIndex, backlash_index
+from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import Oscillation, detect_oscillation
 from .quality import bridge_short_gaps, despike, white_noise_std
@@ -56,6 +56,41 @@ FOLLOWS_GAIN = 0.35
 #: ... in a record that resolves the valve's motion: at least this many
 #: slope windows per oscillation period.
 FOLLOWS_RESOLUTION = 10.0
+
+
+#: A Backlash Index reading of rounded turns may be a lag's, not the valve's,
+#: when the turns fitted behind a first-order lag read at most this BI ...
+LAG_SHARP_BI = 1.5
+#: ... with a lag of at most this share of the period; the confidence of a
+#: backlash or undecided verdict is then multiplied by ``LAG_DOUBT``.
+LAG_MAX_SHARE = 0.05
+LAG_DOUBT = 0.6
+
+
+def sharp_behind_lag(turns) -> bool:
+    """Could a record's rounded turns be a sharp valve turn behind a short lag?
+
+    Parameters
+    ----------
+    turns : valvediag.analysis.bi.LaggedTurns or None
+
+    Returns
+    -------
+    bool
+        True when the turn fitted behind a first-order lag is sharp (its
+        Backlash Index at most ``LAG_SHARP_BI``, the paper's own stiction
+        limit) and the lag is at most ``LAG_MAX_SHARE`` of the period.
+
+    Notes
+    -----
+    A lag rounds a sticky valve's turns as a dead band does (a lag of 2 % of
+    the period lifts the BI of a J/S 0.8 valve from 1.0 to 3.7), but the
+    shapes of the two are too alike to tell apart from the PV alone (see
+    :func:`~valvediag.analysis.bi.lagged_turns`): this is a doubt on a
+    backlash verdict, not a stiction verdict.
+    """
+    return bool(turns is not None and turns.bi <= LAG_SHARP_BI
+                and turns.lag <= LAG_MAX_SHARE * turns.period)
 
 
 def follows_op(sig: ValveSignature, period: float) -> bool:
@@ -575,6 +610,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        f"Backlash Index reads {bres.bi:.2f}",
                        process_screen=pscreen, bi=bres.bi, shape=shape, backlash=bres, **common)
     bres_verdict = bres.verdict
+    turns = lagged_turns(bres) if bres.verdict != "stiction" else None
+    if turns is not None:
+        ev["lagged_turns"] = {"bi": turns.bi, "bi_without_lag": turns.bi_without_lag,
+                              "duration": turns.duration, "lag_s": turns.lag}
     if bres.verdict == "stiction":
         conf = c_data * proc_conf * (0.55 + 0.45 * _margin(bres.bi, lo, 0.15))
         reason = (f"sharp turns at the peaks (Backlash Index {bres.bi:.2f} <= {lo:g}): the valve "
@@ -592,6 +631,11 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         conf = 0.3 * c_data * proc_conf
         reason = (f"a valve nonlinearity, but the Backlash Index {bres.bi:.2f} lies between "
                   f"{lo:g} and {hi:g}: stiction and backlash cannot be told apart")
+    if bres_verdict != "stiction" and sharp_behind_lag(turns):
+        conf *= LAG_DOUBT
+        reason += (f"; but the turns are also those of a sharp turn behind a {turns.lag:.3g} s "
+                   f"lag (BI {turns.bi:.2f} with the lag fitted): if the loop has such a lag (a "
+                   "slow sensor or positioner, a mixing volume) the valve may stick instead")
     if pscreen == "unknown" and process_type == "unknown":
         reason += "; the process type is not known, the loop is assumed integrating"
     return verdict(bres_verdict, conf, reason, process_screen=pscreen, bi=bres.bi, shape=shape,
