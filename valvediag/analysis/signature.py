@@ -710,14 +710,21 @@ class StickSlipEvents:
         return ax
 
 
-#: Fewest valve events, and the least share of the PV's jumps that must be valve events.
+#: Fewest valve events, and the least share of the PV's jumps that must be
+#: valve events; or, in a short record, this many valve events and no other jump.
 MIN_SLIPS = 3
 MIN_SLIP_SHARE = 0.75
+MIN_SLIPS_ALONE = 2
 #: OP travel during a jump, in the direction the OP had crept [noise bands],
 #: beyond which the jump is a take-up (the valve driven by the OP), not a slip.
 TAKEUP_OP = 2.0
 #: Share of the valve events of one kind that names the fault.
 KIND_SHARE = 2.0 / 3.0
+#: A jump exceeds this many robust standard deviations of the record's moves
+#: over the same step (and six noise standard deviations).
+MOVE_SPREAD = 4.0
+#: Steps over which a self-regulating PV's jumps are measured [samples].
+SLIP_STEPS = (2, 8, 32, 128)
 
 
 def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
@@ -758,9 +765,12 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     A load step makes the PV jump *away* from its set point, and a set-point
     step moves the set point first, so neither counts. This needs no process
     gain or controller sign: in a working loop the correction always points
-    back to the set point. The jump is measured over 2, 8 or 32 samples (the
-    shortest step at which the valve events make a fault, else the step that
-    finds the most), which covers process lags up to about 30 samples. A
+    back to the set point. The jump is measured over 2, 8, 32 or 128 samples
+    (the shortest step at which the valve events make a fault, else the step
+    that finds the most), which covers process lags up to about 100
+    samples. A fault needs :data:`MIN_SLIPS` valve events that make
+    :data:`MIN_SLIP_SHARE` of the jumps judged, or, in a snapshot of a few
+    hours, :data:`MIN_SLIPS_ALONE` and no other jump. A
     jump within ``2 L`` samples of the last one continues it (an overshoot,
     a jump split by noise) and is neither counted nor against.
 
@@ -775,7 +785,7 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
 
     It fails where a valve's slips are smaller than six noise standard
     deviations of the PV (or its slope), where a slow process spreads a
-    slip over more than 32 samples, where the OP moves too slowly for a
+    slip over more than 128 samples, where the OP moves too slowly for a
     take-up to make a jump (a loose valve behind slow integral action shows
     no event), and where the set point is missing and moves. A sticky valve
     with a small slip jump after a large stick band is followed, within the
@@ -804,7 +814,7 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     else:
         y = pv
         noise = pv_noise
-        steps = (2, 8, 32)
+        steps = SLIP_STEPS
     if not noise > 0:
         return StickSlipEvents(found=False, reason="the PV has no measurable noise", **base)
     best = None
@@ -816,7 +826,9 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
         n_ok = int(found[1].sum())
         # the shortest step that shows a fault; else the one with the most valve events
         if best is None or (n_ok > best[2] and not best[3]):
-            best = (L, found, n_ok, n_ok >= MIN_SLIPS and n_ok / found[0].size >= MIN_SLIP_SHARE)
+            share = n_ok / found[0].size
+            best = (L, found, n_ok, (n_ok >= MIN_SLIPS and share >= MIN_SLIP_SHARE)
+                    or (n_ok >= MIN_SLIPS_ALONE and share == 1.0))
     if best is None:
         return StickSlipEvents(found=False, reason="no jump of the PV beyond its noise",
                                **base)
@@ -843,7 +855,8 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
         reason = f"{counts}: a valve that holds and then moves, sticky or loose cannot be told"
     else:
         reason = (f"{n_ok} of {idx.size} jumps of the {what} are valve events (need "
-                  f"{MIN_SLIPS} and {100 * MIN_SLIP_SHARE:.0f}% of them)")
+                  f"{MIN_SLIPS} and {100 * MIN_SLIP_SHARE:.0f}% of them, or "
+                  f"{MIN_SLIPS_ALONE} and all)")
     return StickSlipEvents(found=is_fault, reason=reason, events=int(idx.size),
                            consistent=n_ok, slips=n_slip, takeups=n_take, kind=kind,
                            op_travel=op_travel, index=idx[ok], step=L, **base)
@@ -857,6 +870,11 @@ def _slips(y, op, err, sp, L, thr, band, err_min, integrating):
     of at least ``2 L`` samples since the last one (a jump hard on another
     continues it and is not judged)."""
     d = y[L:] - y[:-L]
+    # a jump stands out of the record's ordinary moves over L samples too
+    # (a slow load moves a PV by more than its noise over a long step)
+    dd = d[np.isfinite(d)]
+    if dd.size:
+        thr = max(thr, MOVE_SPREAD * 1.4826 * float(np.median(np.abs(dd - np.median(dd)))))
     big = np.abs(np.nan_to_num(d)) > thr
     if not big.any():
         return None
