@@ -723,6 +723,8 @@ KIND_SHARE = 2.0 / 3.0
 #: A jump exceeds this many robust standard deviations of the record's moves
 #: over the same step (and six noise standard deviations).
 MOVE_SPREAD = 4.0
+#: Widest half-window over which a level's slope is read for its slips [samples].
+SLOPE_WINDOW_MAX = 256
 #: Steps over which a self-regulating PV's jumps are measured [samples].
 SLIP_STEPS = (2, 8, 32, 128)
 
@@ -806,29 +808,32 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     band = NOISE_REVERSAL * white_noise_std(op)
     pv_noise = white_noise_std(pv)
     if process == "integrating":
+        # the slope read over ever wider windows: a slip steps the slope by
+        # little against the noise of a narrow one
         w = min(_slope_window(pv, h, pv_noise), 16)
-        y = np.r_[np.full(w, np.nan), (pv[2 * w:] - pv[:-2 * w]) / (2 * w * h),
-                  np.full(w, np.nan)]
-        noise = pv_noise * math.sqrt(2.0) / (2 * w * h)
-        steps = (2 * w,)
+        reads = []
+        while w <= SLOPE_WINDOW_MAX and 32 * w <= pv.size:
+            y = np.r_[np.full(w, np.nan), (pv[2 * w:] - pv[:-2 * w]) / (2 * w * h),
+                      np.full(w, np.nan)]
+            reads.append((y, pv_noise * math.sqrt(2.0) / (2 * w * h), 2 * w))
+            w *= 4
     else:
-        y = pv
-        noise = pv_noise
-        steps = SLIP_STEPS
-    if not noise > 0:
+        reads = [(pv, pv_noise, L) for L in SLIP_STEPS]
+    if not pv_noise > 0 or not reads:
         return StickSlipEvents(found=False, reason="the PV has no measurable noise", **base)
     best = None
-    for L in steps:
+    for y, noise, L in reads:
         found = _slips(y, op, err, sp, L, 6.0 * noise * math.sqrt(2.0), band,
                        3.0 * pv_noise, process == "integrating")
         if found is None or found[0].size == 0:
             continue
         n_ok = int(found[1].sum())
+        share = n_ok / found[0].size
+        fault = ((n_ok >= MIN_SLIPS and share >= MIN_SLIP_SHARE)
+                 or (n_ok >= MIN_SLIPS_ALONE and share == 1.0))
         # the shortest step that shows a fault; else the one with the most valve events
-        if best is None or (n_ok > best[2] and not best[3]):
-            share = n_ok / found[0].size
-            best = (L, found, n_ok, (n_ok >= MIN_SLIPS and share >= MIN_SLIP_SHARE)
-                    or (n_ok >= MIN_SLIPS_ALONE and share == 1.0))
+        if best is None or (not best[3] and (fault or n_ok > best[2])):
+            best = (L, found, n_ok, fault)
     if best is None:
         return StickSlipEvents(found=False, reason="no jump of the PV beyond its noise",
                                **base)

@@ -155,6 +155,11 @@ def _cycles(pv: np.ndarray, h: float):
     return osc.period, osc.cycles, osc.regularity
 
 
+def _slips_of(mv: np.ndarray, jump: float) -> int:
+    """Slips of a simulated valve: moves of at least half the slip jump in one step."""
+    return int(np.sum(np.abs(np.diff(mv)) >= 0.5 * jump)) if jump > 0 else 0
+
+
 def _events(pv: np.ndarray, noise: float) -> int:
     """Jumps of the PV between two samples larger than 6 noise sigma (slips)."""
     d = np.abs(np.diff(pv))
@@ -290,6 +295,7 @@ def _try(klass: str, rng: np.random.Generator):
     run = simulate_loop(**sim, load_profile=profile_load, sp_profile=profile_sp,
                         noise_std=sigma, valve_noise_band=band, seed=int(rng.integers(1 << 31)))
     pv, op, sp = run.pv[k0:], run.op[k0:], run.sp[k0:]
+    valve_slips = _slips_of(run.mv[k0:], vp.get("J", 0.0)) if valve == "kano" else 0
     pv, op, sp = _record(pv, op, sp, rng, compressed, sigma)
     p.update(tau_s=tau, kc=sim["kc"], ti_s=sim["ti"], dead_time_s=sim.get("dead_time", 0.0),
              lag_s=sim.get("lag", 0.0), valve=valve, **vp, noise_sigma=sigma)
@@ -320,6 +326,9 @@ def _try(klass: str, rng: np.random.Generator):
     elif klass == "level-stiction-events":
         if np.isfinite(period) and cycles >= 4 and regularity > 1.0:
             return None
+        if valve_slips < 3:
+            return None                      # the valve never showed that it sticks
+        p.update(slips=valve_slips)
     elif klass.endswith("healthy"):
         if np.isfinite(period) and cycles >= 4 and regularity > 1.0:
             return None
