@@ -209,6 +209,14 @@ def test_slips_are_told_from_dead_band_take_ups_by_the_op_during_the_jump():
     assert d.verdict == "backlash" and "dead-band take-ups" in d.reason, d.reason
 
 
+def test_two_slips_and_no_other_jump_make_a_snapshot_sticky():
+    pv, op, sp = _slip_record(n_events=2)
+    e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp)
+    assert e.found and e.kind == "stiction" and e.consistent == e.events == 2, e.reason
+    pv, op, sp = _slip_record(n_events=1)
+    assert not stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp).found
+
+
 def test_load_steps_away_from_the_set_point_are_not_slips():
     pv, op, sp = _slip_record(towards_sp=False)
     e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp)
