@@ -35,6 +35,26 @@ def test_sinusoidal_load_is_linear_oscillation():
     assert d.period == pytest.approx(600.0, rel=0.02)
 
 
+def test_a_ringing_loop_is_told_from_a_limit_cycle_by_its_wandering_amplitude():
+    from valvediag.paper.scenarios import ultimate_gain_pi_integrator
+
+    # a level loop at 90 % of its ultimate gain, rung by a random load: a
+    # regular, rounded oscillation whose amplitude wanders
+    tau, theta, ti = 200.0, 40.0, 400.0
+    kc = 0.9 * ultimate_gain_pi_integrator(tau, theta, ti)
+    sim = simulate_loop(kc=kc, ti=ti, tau=tau, dead_time=theta, sample_time=1.0,
+                        duration=6 * 3600, load=50.0, sp=50.0, load_noise_std=0.5, seed=3)
+    pv, op = sim.pv[3600:], sim.op[3600:]
+    pv = pv + np.random.default_rng(1).normal(0, 0.01 * np.ptp(pv), pv.size)
+    d = classify_loop(pv, op, sample_time=1.0, process_type="integrating")
+    assert d.evidence["amplitude_variation"] >= 0.3
+    assert d.verdict == "linear-oscillation" and "amplitude wanders" in d.reason, d.reason
+    # a valve's limit cycle keeps its amplitude
+    pv, op, h = _loop("kano", {"S": 3.0, "J": 1.5})
+    d = classify_loop(pv, op, sample_time=h, process_type="integrating")
+    assert d.evidence["amplitude_variation"] < 0.1 and d.verdict == "stiction"
+
+
 def test_oscillation_with_still_op_is_external():
     t = np.arange(3000) * 2.0
     pv = np.sin(2 * np.pi * t / 300)

@@ -58,6 +58,10 @@ FOLLOWS_GAIN = 0.35
 FOLLOWS_RESOLUTION = 10.0
 
 
+#: An oscillation whose half-cycle swings vary by this share of their mean
+#: or more (:attr:`Oscillation.amplitude_variation`) is a linear loop's
+#: noise-driven resonance, not a valve's limit cycle.
+RESONANCE_VARIATION = 0.3
 #: A Backlash Index reading of rounded turns may be a lag's, not the valve's,
 #: when the turns fitted behind a first-order lag read at most this BI ...
 LAG_SHARP_BI = 1.5
@@ -560,6 +564,16 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        "the PV oscillates while the OP stands still: the oscillation comes from "
                        "outside the loop (manual mode, or a disturbance)", process_screen=pscreen,
                        shape=shape, **common)
+    amp_cv = osc.amplitude_variation
+    ev["amplitude_variation"] = amp_cv
+    if np.isfinite(amp_cv) and amp_cv >= RESONANCE_VARIATION:
+        # (its valve events are not read: a ringing loop's turns pass for them)
+        return verdict(
+            "linear-oscillation", c_data * (0.5 + 0.4 * min(1.0, amp_cv / 0.5)),
+            f"the cycles' amplitude wanders (variation {amp_cv:.2f} of the mean swing) as a "
+            "noise-driven resonance's does, where a valve's limit cycle keeps its amplitude: "
+            "review the tuning or trace an external disturbance", process_screen=pscreen,
+            shape=shape, **common)
     if selfreg:
         src = "loop registry" if process_type == "self-regulating" else \
             (f"data test: the PV does not run in straight ramps (curvature "

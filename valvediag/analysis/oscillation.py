@@ -342,6 +342,29 @@ class Oscillation:
         return self.period / self.sample_time
 
     @property
+    def amplitude_variation(self) -> float:
+        """Coefficient of variation of the half-cycle swings [-]; NaN under three cycles.
+
+        Each swing is the difference of two successive apices, each the mean
+        of the drift-free record over a twentieth of the period about it (so
+        that the noise which made a sample the extreme does not count). A
+        valve's limit cycle keeps its amplitude (the nonlinearity sets it:
+        a few percent here); a linear loop ringing under a random load has
+        the wandering envelope of narrow-band noise (about 0.5).
+        """
+        ai = np.asarray(self.apex_idx)
+        if ai.size < 7 or not (np.isfinite(self.period) and self.period > 0):
+            return float("nan")
+        x = self.baseline_removed
+        q = max(1, int(self.period / self.sample_time / 40))
+        cs = np.r_[0.0, np.cumsum(x)]
+        lo, hi = np.maximum(ai - q, 0), np.minimum(ai + q + 1, x.size)
+        v = (cs[hi] - cs[lo]) / (hi - lo)
+        swing = np.abs(np.diff(v))
+        m = float(swing.mean())
+        return float(swing.std() / m) if m > 0 else float("nan")
+
+    @property
     def is_regular(self) -> bool:
         """Regular oscillation: Thornhill regularity > 1, strong ACF and shape."""
         return bool(self.cycles >= 2 and self.regularity > 1.0 and self.acf_at_period > 0.3
