@@ -10,13 +10,13 @@ import math
 import shutil
 
 import numpy as np
-
-from valvediag.plain import to_plain
 import polars as pl
 import pytest
 from scipy import signal
 
+from valvediag import simulate_loop
 from valvediag.io.registry import LoopSpec
+from valvediag.plain import to_plain
 from valvediag.scan.loop import analyse_loop, load_loop_frames
 from valvediag.scan.plan import plan_loops
 from valvediag.scan.plant import rank_results, severity
@@ -148,6 +148,18 @@ def test_quiet_loop_is_no_oscillation_and_a_snapshot_says_what_it_covers():
     assert r.verdict == "no-oscillation"
     assert "no oscillation in the 2 h of data available (of the 24 h window)" in r.reason
     assert r.confidence < full.confidence
+
+
+def test_a_valve_verdict_on_a_snapshot_says_what_it_stands_on():
+    # two hours of a sticky valve's limit cycle exported inside a 24 h window
+    sim = simulate_loop(kc=1.0, ti=60.0, tau=60.0, sample_time=1.0, duration=9000,
+                        sp_step=1.0, valve="kano", valve_params={"S": 3.0, "J": 1.5})
+    pv, op = sim.pv[1800:], sim.op[1800:]
+    t = np.arange(pv.size, dtype=float)
+    job = LoopJob(SPEC, T0, T0 + dt.timedelta(hours=24))
+    r = analyse_loop(job, {"pv": frame(t, pv), "op": frame(t, op)})
+    assert r.verdict == "stiction"
+    assert r.reason.endswith("(from the 2 h of data available of the 24 h window)"), r.reason
 
 
 @pytest.mark.parametrize("spec, frames, problems, expect", [

@@ -594,6 +594,10 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
             confidence *= 0.5 + 0.5 * ev["coverage"] / config.min_coverage
         if len(segs) > 1:
             ev["segment_verdicts"] = sorted({d.verdict for _, _, d in seg_diag})
+    if verdict != "no-oscillation" and ev["coverage"] < config.min_coverage:
+        # any other verdict on a snapshot says what it stands on too
+        reason += (f" (from the {usable_s / 3600:.2g} h of data available of the "
+                   f"{window_s / 3600:.3g} h window)")
 
     osc_s = sum((b - a) for a, b, _ in episodes) * h
     amp = rep.amplitude if verdict != "no-oscillation" else math.nan

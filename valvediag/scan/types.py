@@ -56,8 +56,8 @@ class ScanConfig:
         Longest interval bridged by interpolation, for every tag [s]. Default:
         per tag from its own spacing (:func:`valvediag.analysis.align.tag_max_gap`).
     min_coverage : float, default 0.1
-        Share of the window below which a ``no-oscillation`` verdict is a
-        snapshot's: its reason names the hours it stands on and its
+        Share of the window below which a verdict is a snapshot's: its reason
+        names the hours it stands on, and a ``no-oscillation`` verdict's
         confidence falls in proportion (an export of a few hours around an
         event is analysed, not refused) [-].
     size_estimate : bool, default True
