@@ -233,3 +233,25 @@ def test_a_pv_that_ignores_set_point_moves_is_a_dead_response():
     d = classify_loop(pv, op, sp, sample_time=1.0, process_type="self-regulating")
     assert d.verdict == "insufficient-data" and "does not answer" in d.reason
     assert "check on site" in d.reason
+
+
+def test_a_cycles_fastest_moves_are_slips_in_a_sticky_loop_and_take_ups_behind_a_dead_band():
+    from valvediag import simulate_loop
+    from valvediag.analysis.oscillation import detect_oscillation
+    from valvediag.analysis.signature import cycle_transitions
+
+    # closed loop, sticky flow valve: the PV jumps and the controller answers
+    sim = simulate_loop(sample_time=0.5, n_samples=28800, sp=50.0, process="self-regulating",
+                        tau=10.0, kc=0.8, ti=8.0, dead_time=2.0, valve="kano",
+                        valve_params={"S": 3.0, "J": 0.6}, sp_step=1.0, sp_step_time=60.0)
+    pv, op = sim.pv[3600::2], _noisy(sim.op[3600::2], 0.005)
+    osc = detect_oscillation(pv, 1.0)
+    slips, takeups = cycle_transitions(pv, op, 1.0, osc.period, osc.apex_idx, 0.03)
+    assert slips >= 20 and takeups <= slips / 10, (slips, takeups)
+    # a dead band driven by a triangular OP: the PV moves only as the OP moves on
+    op = _triangle(6000, 300.0)
+    pv = _flow(apply_valve("backlash", op, DB=2.0), op, noise=0.01)
+    osc = detect_oscillation(pv, H)
+    slips, takeups = cycle_transitions(pv, _noisy(op, 0.005), H, osc.period, osc.apex_idx,
+                                       0.03)
+    assert takeups >= 20 and slips <= takeups / 10, (slips, takeups)

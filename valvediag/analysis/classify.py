@@ -13,8 +13,11 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    self-regulating loop whose cycle the valve signature cannot explain).
 3. ``linear-oscillation``: a regular oscillation that no valve nonlinearity
    explains (tuning or an external disturbance); send no one to the valve.
-   A sinusoidal PV, an OP that stands still, or a valve position implied by
-   the PV that follows the OP (:func:`follows_op`) says so.
+   A sinusoidal PV, an OP that stands still, a valve position implied by
+   the PV that follows the OP (:func:`follows_op`), or cycles whose
+   amplitude wanders as a noise-driven resonance's does
+   (:attr:`~valvediag.analysis.oscillation.Oscillation.amplitude_variation`:
+   a valve's limit cycle keeps its amplitude) says so.
 4. ``stiction``, ``backlash`` or ``undecided``. On an integrating process the
    Backlash Index decides, as the paper does, and the valve signature
    (:func:`valvediag.analysis.signature.valve_signature`) settles a BI
@@ -33,7 +36,8 @@ from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import Oscillation, detect_oscillation
 from .quality import bridge_short_gaps, despike, white_noise_std
-from .signature import ValveSignature, horch_correlation, stick_slip_events, valve_signature
+from .signature import (KIND_SHARE, ValveSignature, cycle_transitions, horch_correlation,
+                        stick_slip_events, valve_signature)
 
 __all__ = ["classify_loop", "LoopDiagnosis", "integrating_screen"]
 
@@ -188,10 +192,21 @@ def _self_regulating_verdict(verdict, x, u, h, osc, src, c_data, ev, **kw):
     where = f"on a self-regulating process ({src})"
     if sig.nonlinear:
         conf = c_data * (0.5 + 0.45 * min(1.0, sig.gain))
-        if sig.verdict == "undecided":
+        kind, reason = sig.verdict, f"{sig.reason}, {where}; method: valve signature"
+        if kind != "stiction":
+            # the kind the signature leaves open (or reads as a dead band) from
+            # what the OP did at each half-cycle's fastest PV move
+            slips, takeups = cycle_transitions(x, u, h, osc.period, osc.apex_idx,
+                                               sig.noise_band)
+            ev["cycle_transitions"] = {"slips": slips, "takeups": takeups}
+            if slips >= 3 and slips >= KIND_SHARE * (slips + takeups):
+                kind = "stiction"
+                reason += (f"; at {slips} of {slips + takeups} half-cycles the PV's fastest "
+                           "move came while the OP stood or turned back: the valve jumped "
+                           "(method: valve signature and the cycle's slips)")
+        if kind == "undecided":
             conf *= 0.6
-        return verdict(sig.verdict, conf, f"{sig.reason}, {where}; method: valve signature",
-                       **kw)
+        return verdict(kind, conf, reason, **kw)
     if sig.verdict == "linear":
         return verdict("linear-oscillation", c_data * (0.5 + 0.4 * max(0.0, sig.r2_linear)),
                        f"an oscillation {where} that no valve nonlinearity explains: "
@@ -525,7 +540,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                 conf = 0.5 + 0.4 * min(1.0, slips.consistent / 10.0)
                 return verdict(slips.kind, conf if slips.kind != "undecided" else 0.6 * conf,
                                f"{what}: {slips.reason} ({kind} process, {src}); method: "
-                               "stick-slip events", **common)
+                               "valve events (slips and take-ups)", **common)
         return None
 
     def slips_or(v, conf, reason):

@@ -60,7 +60,7 @@ from ..models.valves import apply_valve
 from .quality import white_noise_std
 
 __all__ = ["ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_events",
-           "horch_correlation", "SIGNATURE_LIMITS"]
+           "horch_correlation", "cycle_transitions", "SIGNATURE_LIMITS"]
 
 #: Decision limits of :func:`valve_signature` (calibrated on the development
 #: set of ``benchmarks/bench_realistic.py``, seed 1).
@@ -577,6 +577,64 @@ def _stick_point(x: np.ndarray, op: np.ndarray) -> np.ndarray:
     return op[idx]
 
 
+def cycle_transitions(pv, op, sample_time: float, period: float, apex_idx,
+                      noise_band: float) -> tuple[int, int]:
+    """Slips and take-ups at the fastest move of each half-cycle of an oscillation.
+
+    Parameters
+    ----------
+    pv, op : array_like, shape (n,)
+        One gap-free oscillating stretch [PV unit, OP unit].
+    sample_time : float
+        [s]
+    period : float
+        Oscillation period [s].
+    apex_idx : array_like of int
+        The PV's apices (peaks and valleys in time order).
+    noise_band : float
+        The OP's noise band [OP unit].
+
+    Returns
+    -------
+    (slips, takeups) : tuple of int
+        Half-cycles whose fastest PV move came while the OP stood or moved
+        back (by at most :data:`TAKEUP_OP` noise bands on, in the direction
+        it had moved over the half-cycle before), and those during which it
+        moved on.
+
+    Notes
+    -----
+    The test of :func:`stick_slip_events` applied to a limit cycle, where the
+    error does not grow while the valve holds. In a sticky valve's cycle the
+    PV's fastest move is the slip, and the controller answers it (the OP
+    stands or turns back); a valve that follows the OP (a dead band taken up)
+    moves the PV only as the OP moves on. It assumes a process fast against
+    the period (a self-regulating loop; on a level the PV's fastest move is
+    mid-ramp) and says nothing of a linear valve: an external square load
+    makes the PV jump and the controller answer it the same way.
+    """
+    pv = np.asarray(pv, dtype=float)
+    op = np.asarray(op, dtype=float)
+    ai = np.asarray(apex_idx, dtype=np.int64)
+    if not (math.isfinite(period) and period > 0) or ai.size < 3:
+        return 0, 0
+    L = max(1, int(round(period / sample_time / 40.0)))
+    slips = takeups = 0
+    for a, b in zip(ai[:-1], ai[1:]):
+        if b - a < 4 * L:
+            continue
+        k = a + int(np.argmax(np.abs(pv[a + L:b] - pv[a:b - L])))
+        before = op[max(k - L, 0)] - op[max(a - (b - a) // 2, 0)]
+        if before == 0:
+            continue
+        on = (op[min(k + 2 * L, op.size - 1)] - op[max(k - L, 0)]) * np.sign(before)
+        if on <= TAKEUP_OP * noise_band:
+            slips += 1
+        else:
+            takeups += 1
+    return slips, takeups
+
+
 def horch_correlation(pv, op, sample_time: float, period: float) -> float:
     """Horch's test: the OP-PV cross-correlation's asymmetry about lag zero.
 
@@ -636,7 +694,9 @@ class StickSlipEvents:
     reason : str
         One sentence.
     events : int
-        Jumps of the PV (or its slope) beyond six noise standard deviations.
+        Jumps of the PV (or its slope) beyond six noise standard deviations
+        and beyond the record's ordinary moves, judged (see the Notes of
+        :func:`stick_slip_events`).
     consistent : int
         Of those, valve events: the OP had moved towards the jump by more
         than its noise band over the half of the stretch before it, while
@@ -774,7 +834,10 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     :data:`MIN_SLIP_SHARE` of the jumps judged, or, in a snapshot of a few
     hours, :data:`MIN_SLIPS_ALONE` and no other jump. A
     jump within ``2 L`` samples of the last one continues it (an overshoot,
-    a jump split by noise) and is neither counted nor against.
+    a jump split by noise) and is neither counted nor against. A level's
+    slope is read over half-windows growing fourfold from the narrowest that
+    resolves it (at most 16 samples) to :data:`SLOPE_WINDOW_MAX`, its jumps
+    over one window.
 
     A loose valve holds too, inside its dead band, and then moves the PV back
     as fast as the OP drives it. What tells the two apart is the OP *during*

@@ -343,8 +343,9 @@ def signature_size(evidence: Mapping, fault: str) -> dict:
         slips = evidence.get("stick_slip") or {}
         out = {"S": math.nan, "J": math.nan} if fault == "stiction" else {"DB": math.nan}
         out.update(confidence=0.0, reason=(
-            f"found by its slips, not sized: the OP crept about {slips.get('op_travel')} % "
-            "before each slip" if slips else "no valve signature to size from"))
+            f"found by its valve events, not sized: the OP crept about "
+            f"{slips.get('op_travel')} % before each" if slips else
+            "no valve signature to size from"))
         return out
     r2, gain = sig.get("r2_valve") or 0.0, sig.get("gain") or 0.0
     out = {"DB": float(S)} if fault == "backlash" else {"S": float(S), "J": float(J)}
