@@ -861,11 +861,23 @@ _START_STRIDE = 2
 def turn_bi(duration: float) -> float:
     """The Backlash Index of a valve turn that takes ``duration`` periods.
 
+    Parameters
+    ----------
+    duration : float
+        Time the PV's slope takes to turn [fraction of the period].
+
+    Returns
+    -------
+    float
+        The BI on the robust estimator's scale; 1 for a sharp turn.
+
+    Notes
+    -----
     The turn of :func:`lagged_turns`: the PV's slope changes at a constant
     rate over ``T = duration`` and a symmetric apex lies in its middle. With
     the chord ``d = P / NREF`` of the robust estimator the chord slope at the
     apex gives ``BI = 1 / (1 - T / (4 d))`` for ``T <= 2 d`` and ``T / d``
-    beyond; 1 for a sharp turn.
+    beyond.
     """
     T = float(duration)
     d = 1.0 / NREF
