@@ -771,10 +771,12 @@ class StickSlipEvents:
 
 
 #: Fewest valve events, and the least share of the PV's jumps that must be
-#: valve events; or, in a short record, this many valve events and no other jump.
+#: valve events; or, in a record of at most ``SNAPSHOT_S``, this many valve
+#: events and no other jump.
 MIN_SLIPS = 3
 MIN_SLIP_SHARE = 0.75
 MIN_SLIPS_ALONE = 2
+SNAPSHOT_S = 4 * 3600.0
 #: OP travel during a jump, in the direction the OP had crept [noise bands],
 #: beyond which the jump is a take-up (the valve driven by the OP), not a slip.
 TAKEUP_OP = 2.0
@@ -831,8 +833,8 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     (the shortest step at which the valve events make a fault, else the step
     that finds the most), which covers process lags up to about 100
     samples. A fault needs :data:`MIN_SLIPS` valve events that make
-    :data:`MIN_SLIP_SHARE` of the jumps judged, or, in a snapshot of a few
-    hours, :data:`MIN_SLIPS_ALONE` and no other jump. A
+    :data:`MIN_SLIP_SHARE` of the jumps judged, or, in a snapshot of at most
+    :data:`SNAPSHOT_S`, :data:`MIN_SLIPS_ALONE` and no other jump. A
     jump within ``2 L`` samples of the last one continues it (an overshoot,
     a jump split by noise) and is neither counted nor against. A level's
     slope is read over half-windows growing fourfold from the narrowest that
@@ -846,7 +848,10 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     proportional action answers the PV; a take-up is the valve following the
     OP, so the OP moves on in the direction it had crept, by more than
     :data:`TAKEUP_OP` noise bands. Two thirds of the valve events of one kind
-    name the fault; a mix is ``'undecided'``.
+    name the fault; a mix is ``'undecided'``. On an integrating process the
+    test does not apply (a slip steps the level's slope, and the controller
+    answers only through the error that slowly grows from it, so the OP moves
+    on after a slip as well): there every valve event counts as a slip.
 
     It fails where a valve's slips are smaller than six noise standard
     deviations of the PV (or its slope), where a slow process spreads a
@@ -884,6 +889,7 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
         reads = [(pv, pv_noise, L) for L in SLIP_STEPS]
     if not pv_noise > 0 or not reads:
         return StickSlipEvents(found=False, reason="the PV has no measurable noise", **base)
+    short = pv.size * h <= SNAPSHOT_S
     best = None
     for y, noise, L in reads:
         found = _slips(y, op, err, sp, L, 6.0 * noise * math.sqrt(2.0), band,
@@ -893,7 +899,7 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
         n_ok = int(found[1].sum())
         share = n_ok / found[0].size
         fault = ((n_ok >= MIN_SLIPS and share >= MIN_SLIP_SHARE)
-                 or (n_ok >= MIN_SLIPS_ALONE and share == 1.0))
+                 or (n_ok >= MIN_SLIPS_ALONE and share == 1.0 and short))
         # the shortest step that shows a fault; else the one with the most valve events
         if best is None or (not best[3] and (fault or n_ok > best[2])):
             best = (L, found, n_ok, fault)
@@ -901,7 +907,9 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
         return StickSlipEvents(found=False, reason="no jump of the PV beyond its noise",
                                **base)
     L, (idx, ok, travel, on), n_ok, is_fault = best
-    slip = ok & (on <= TAKEUP_OP * band)
+    # a level's controller answers a slope's jump only through the error it
+    # grows, so the OP moves on after a slip too: there every event is a slip
+    slip = ok & ((on <= TAKEUP_OP * band) | (process == "integrating"))
     n_slip, n_take = int(slip.sum()), int((ok & ~slip).sum())
     op_travel = float(np.median(travel[ok])) if n_ok else math.nan
     kind = ""
