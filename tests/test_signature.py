@@ -219,7 +219,7 @@ def test_two_slips_and_no_other_jump_make_a_snapshot_sticky():
     pv, op, sp = _slip_record(n_events=2)
     rng = np.random.default_rng(9)
     quiet = 86_400 - pv.size
-    pv = np.r_[pv[-1] + rng.normal(0, 0.02, quiet), pv]
+    pv = np.r_[pv[0] + rng.normal(0, 0.02, quiet), pv]
     op = np.r_[op[0] + rng.normal(0, 0.01, quiet), op]
     e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=np.full(pv.size, 50.0))
     assert e.consistent == 2 and not e.found, e.reason
