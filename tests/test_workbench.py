@@ -96,6 +96,35 @@ def test_kernel_score_equals_direct_residual(clean_backlash):
     assert sc[0, 2] == pytest.approx(ev["gain"], rel=1e-7)
 
 
+def test_kernel_scores_only_the_stored_pv_samples(clean_backlash):
+    """With ``pv_points='stored'`` the kernel's SSE is the residual's over the
+    samples a historian stored, and a record whose every sample is stored
+    scores as before."""
+    from valvediag.synth.plant import swinging_door
+
+    _, data = clean_backlash
+    pv = data.pv + 0.01 * np.random.default_rng(0).standard_normal(data.n)
+    t = np.arange(data.n, dtype=float)
+    keep = np.flatnonzero(swinging_door(pv, 0.04, t=t))
+    stored = prepare_loop(np.interp(t, keep, pv[keep]), data.op, 1.0, pv_points="stored")
+    scored = stored.sample_set >= 0
+    assert 0 < scored.sum() < 0.5 * (stored.seg_set >= 0).sum() * stored.horizon
+    assert set(np.flatnonzero(scored)) <= set(keep)
+    effects = ("deadband", "dead_time", "lag", "bias", "drift")
+    th = Theta(DB=2.5, delay=5.5, lag=9.0)
+    prob = Problem(stored, effects)
+    sc = prob.score([th, th.replace(DB=3.0)])
+    e = prob.evaluate(th)["residual"]
+    assert np.isnan(e[~scored]).all()
+    assert sc[0, 0] == pytest.approx(np.nansum(e[prob.sample_set == 0] ** 2), rel=1e-7)
+    assert sc[0, 1] == pytest.approx(np.nansum(e[prob.sample_set == 1] ** 2), rel=1e-7)
+    every = Problem(prepare_loop(pv, data.op, 1.0), effects).score([th])
+    same = Problem(prepare_loop(pv, data.op, 1.0, pv_points="stored"), effects).score([th])
+    np.testing.assert_allclose(same, every, rtol=1e-9)
+    with pytest.raises(WorkbenchDataError, match="pv_points"):
+        prepare_loop(pv, data.op, 1.0, pv_points="some")
+
+
 def test_reinit_at_the_measured_pv(clean_backlash):
     """Segments re-initialised at the measured PV: the kernel still equals
     the direct residual, the truth still fits exactly on clean data, and with
@@ -321,6 +350,28 @@ def test_a_compressed_op_is_rebuilt_from_the_controller_law():
     out = estimate_valve_size(pv, stored, 1.0, "backlash")
     assert "rebuilt between its stored points" in out["reason"]
     assert out["DB"] == pytest.approx(3.0, rel=0.15)
+
+
+def test_a_dead_band_behind_a_compressed_pv_is_sized_on_its_stored_samples():
+    """The straight lines between a compressed PV's stored points cut its
+    turns short; scored as data they size a dead band small. Scored on its
+    stored samples only, the size is the simulated one."""
+    from valvediag.synth.plant import exception_deadband, swinging_door
+
+    sim = _sim(duration=4 * 3600, noise_std=0.025)
+    pv, op = sim.pv[600:], sim.op[600:]
+    t = np.arange(pv.size, dtype=float)
+    dev = 0.06 * 0.5 * np.ptp(pv)                        # 6 % of the amplitude
+    exc = np.flatnonzero(exception_deadband(pv, dev / 2))
+    keep = exc[swinging_door(pv[exc], dev, t=exc.astype(float))]
+    read_back = np.interp(t, keep, pv[keep])
+    out = estimate_valve_size(read_back, op, 1.0, "backlash")
+    assert "stored samples" in out["reason"]
+    assert out["DB"] == pytest.approx(3.0, rel=0.04)
+    model = LoopModel(("deadband", "dead_time", "bias", "drift"))
+    lines = model.fit(prepare_loop(read_back, op, 1.0))
+    assert lines.params["DB"] < 0.95 * out["DB"]          # the bias the stored samples remove
+    assert "stored samples" not in estimate_valve_size(pv, op, 1.0, "backlash")["reason"]
 
 
 def test_estimate_valve_size_bad_data_and_bad_fault():

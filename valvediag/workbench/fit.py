@@ -200,6 +200,7 @@ class Problem:
         self.seg_id = d.seg_id
         self.n_train = int((self.sample_set == 0).sum())
         self.n_held = int((self.sample_set == 1).sum())
+        self.wt = (self.sample_set >= 0).astype(float)
 
     def basis(self, theta: Theta) -> np.ndarray:
         """Load basis of a candidate (its columns depend on the load's period)."""
@@ -355,8 +356,8 @@ class Problem:
             P = np.ascontiguousarray(np.array([self.row(thetas[i]) for i in idx]))
             o = np.empty((len(idx), 3 + self.p))
             fn = kernels.score_batch if len(idx) >= 4 and _main_thread() else kernels.score_serial
-            fn(self.u, self.vcode, P, d.seg_start, d.seg_end, d.seg_set, st["qv"], st["WT"],
-               st["qW"], self.anchored, st["Py"], st["ystats"], st["G2"], st["Ginv"],
+            fn(self.u, self.vcode, P, d.seg_start, d.seg_end, d.seg_set, self.wt, st["qv"],
+               st["WT"], st["qW"], self.anchored, st["Py"], st["ystats"], st["G2"], st["Ginv"],
                st["GinvWy"], o)
             out[idx] = o
             self.n_evals += len(idx)

@@ -97,7 +97,7 @@ def _chain_response(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats,
+def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, wt, qv, WT, qW, anchored, Py, ystats,
                G2, Ginv, GinvWy, out, r):
     p = WT.shape[1]
     ns = seg_start.shape[0]
@@ -122,7 +122,7 @@ def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, qW, anchored
             off = r[a]
             for k in range(a, b):
                 rc = r[k] - qv[k - a] * off
-                s_rr += rc * rc
+                s_rr += wt[k] * rc * rc
                 s_ry += rc * Py[k]
             rr[st] += s_rr
         else:
@@ -135,12 +135,12 @@ def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, qW, anchored
             qq = 0.0
             for k in range(a, b):
                 rc = r[k] - off
-                q = qv[k - a]
-                s_rr += rc * rc
+                q = qv[k - a] * wt[k]
+                s_rr += wt[k] * rc * rc
                 s_ry += rc * Py[k]
                 sq += q * rc
                 qq += q * q
-            rr[st] += s_rr - sq * sq / qq
+            rr[st] += s_rr - (sq * sq / qq if qq > 0.0 else 0.0)
         ry[st] += s_ry
         # offset part of the fixed columns' inner products (zero when they
         # are projected: orthogonal to each segment's free response)
@@ -187,8 +187,8 @@ def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, qW, anchored
 
 
 @numba.njit(cache=True, parallel=True)
-def score_batch(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats, G2,
-                Ginv, GinvWy, out):
+def score_batch(u, vcode, P, seg_start, seg_end, seg_set, wt, qv, WT, qW, anchored, Py, ystats,
+                G2, Ginv, GinvWy, out):
     """Score a batch of candidates in parallel (see :func:`score_serial`).
 
     It keeps the GIL (unlike the other kernels): numba's fallback threading
@@ -197,13 +197,13 @@ def score_batch(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, qW, anchored, 
     n = u.shape[0]
     for i in numba.prange(P.shape[0]):
         r = np.empty(n)
-        _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats,
-                   G2, Ginv, GinvWy, out, r)
+        _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, wt, qv, WT, qW, anchored, Py,
+                   ystats, G2, Ginv, GinvWy, out, r)
 
 
 @numba.njit(cache=True, nogil=True)
-def score_serial(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats, G2,
-                 Ginv, GinvWy, out):
+def score_serial(u, vcode, P, seg_start, seg_end, seg_set, wt, qv, WT, qW, anchored, Py, ystats,
+                 G2, Ginv, GinvWy, out):
     """Score a batch of candidate chains, one after the other.
 
     Parameters (all float64 unless noted)
@@ -214,6 +214,8 @@ def score_serial(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, qW, anchored,
         us0 (initial residual force of He's valve), band (noise band of a Kano valve)
     seg_start, seg_end : (ns,) int64 segment bounds [start, end)
     seg_set : (ns,) int64, 0 training, 1 held-out, -1 unused
+    wt : (n,) 1 where a sample is scored, 0 where not (a PV sample the
+         historian did not store, read back by interpolation)
     qv : (Lmax,) free response of the plant from a unit initial state,
          ``qa**j`` (all ones for an integrator)
     WT : (2, p, n) projected fixed columns (load terms), per set (zero
@@ -234,8 +236,8 @@ def score_serial(u, vcode, P, seg_start, seg_end, seg_set, qv, WT, qW, anchored,
     """
     r = np.empty(u.shape[0])
     for i in range(P.shape[0]):
-        _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, qv, WT, qW, anchored, Py, ystats,
-                   G2, Ginv, GinvWy, out, r)
+        _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, wt, qv, WT, qW, anchored, Py,
+                   ystats, G2, Ginv, GinvWy, out, r)
 
 
 @numba.njit(cache=True, nogil=True)
