@@ -374,6 +374,20 @@ def test_a_dead_band_behind_a_compressed_pv_is_sized_on_its_stored_samples():
     assert "stored samples" not in estimate_valve_size(pv, op, 1.0, "backlash")["reason"]
 
 
+def test_too_few_stored_pv_samples_fall_back_to_every_sample():
+    from valvediag.synth.plant import swinging_door
+
+    sim = _sim(duration=2 * 3600)
+    pv, op = sim.pv[600:], sim.op[600:]
+    t = np.arange(pv.size, dtype=float)
+    keep = np.flatnonzero(swinging_door(pv, 0.1 * np.ptp(pv), t=t))   # a few dozen points
+    read_back = np.interp(t, keep, pv[keep])
+    with pytest.raises(WorkbenchDataError, match="too few stored PV samples"):
+        prepare_loop(read_back, op, 1.0, pv_points="stored")
+    out = estimate_valve_size(read_back, op, 1.0, "backlash")
+    assert np.isfinite(out["DB"]) and "stored samples" not in out["reason"]
+
+
 def test_estimate_valve_size_bad_data_and_bad_fault():
     out = estimate_valve_size(np.zeros(500), np.full(500, 30.0), 1.0, "stiction")
     assert math.isnan(out["S"]) and out["confidence"] == 0.0 and "never moves" in out["reason"]

@@ -200,9 +200,16 @@ def estimate_valve_size(pv, op, sample_time, fault, process_type="integrating", 
         # short where it turns smoothly, as behind a dead band: only the stored
         # samples are scored then (a sticky valve's PV turns at kinks, which the
         # compression stores, and its lines are data: see Notes)
-        pv_points = ("stored" if valve == "deadband" and _interpolated_share(pv) > COMPRESSED_SHARE
-                     else "all")
-        data = prepare_loop(pv, op, sample_time, sp=sp, op_noise=op_noise, pv_points=pv_points)
+        stored = valve == "deadband" and _interpolated_share(pv) > COMPRESSED_SHARE
+        data = None
+        if stored:
+            try:
+                data = prepare_loop(pv, op, sample_time, sp=sp, op_noise=op_noise,
+                                    pv_points="stored")
+            except WorkbenchDataError:
+                pass            # too few stored samples: every sample is scored
+        if data is None:
+            data = prepare_loop(pv, op, sample_time, sp=sp, op_noise=op_noise)
     except WorkbenchDataError as exc:
         out["reason"] = str(exc)
         return out
