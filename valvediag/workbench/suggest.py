@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..plain import finite_or_none
-from .data import LoopData, periodogram_band, prepare_loop
+from .data import LoopData, periodogram_band
 from .diagnosis import Z99, Diagnosis, event_average, residual_ccf
 from .effects import EFFECTS, check_effects
-from .model import LoopModel, ModelFit
+from .model import LoopModel, ModelFit, fit_model
 
 __all__ = ["Evidence", "Suggestion", "Suggestions", "PairComparison", "LadderStep",
            "ErrorLadder", "effect_evidence", "suggest_effects", "compare_heldout",
@@ -701,22 +701,13 @@ def diagnose(pv, op, sample_time, effects=(), *, process_type: str = "integratin
 
     Parameters
     ----------
-    pv, op : array_like
-        Measured PV [PV unit] and controller output [OP unit].
-    sample_time : float
-        [s]
-    effects : str or tuple of str
-        Starting model (default: the plant alone).
-    process_type : {'integrating', 'self-regulating'}
-    sp : array_like, optional
-        Set point [PV unit].
-    **options : dict
-        Passed to :func:`valvediag.workbench.prepare_loop` (``horizon``,
-        ``blocks``, ``band_max``, ``name``).
+    pv, op, sample_time, effects, process_type, sp, **options : see fit_model
+        As :func:`valvediag.workbench.fit_model`: the record, the starting
+        model (default: the plant alone) and its options.
 
     Returns
     -------
     Suggestions
     """
-    data = prepare_loop(pv, op, sample_time, sp=sp, **options)
-    return suggest_effects(LoopModel(effects, process_type).fit(data))
+    return suggest_effects(fit_model(pv, op, sample_time, effects, process_type=process_type,
+                                     sp=sp, **options))
