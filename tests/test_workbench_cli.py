@@ -81,6 +81,35 @@ def test_fit_text_and_json(capsys, loop_csv):
     assert doc["units"]["S"] == "OP unit" and doc["fit_pct"] > 90
 
 
+def test_fit_scores_only_the_stored_samples_of_a_compressed_pv(capsys, tmp_path):
+    from valvediag.synth.plant import exception_deadband, swinging_door
+
+    sim = simulate_loop(kc=2.0, ti=60.0, tau=60.0, sample_time=1.0, duration=4 * 3600,
+                        sp_step=1.0, valve="backlash", valve_params={"DB": 3.0},
+                        noise_std=0.025, seed=1)
+    t, pv, op = sim.t[600:], sim.pv[600:], sim.op[600:]
+    k = np.arange(pv.size, dtype=float)
+    dev = 0.06 * 0.5 * np.ptp(pv)
+    exc = np.flatnonzero(exception_deadband(pv, dev / 2))
+    keep = exc[swinging_door(pv[exc], dev, t=exc.astype(float))]
+    # written at full precision: a line rounded to a few decimals has kinks at every sample
+    path = tmp_path / "compressed.csv"
+    read_back = np.interp(k, keep, pv[keep])
+    path.write_text("timestamp,pv,op\n" + "".join(f"{a:g},{b:.17g},{c:.17g}\n" for a, b, c in
+                                                     zip(t, read_back, op)))
+    db = {}
+    for points in ("all", "stored"):
+        rc, out, _ = _run(capsys, "model", "fit", str(path), "--effects",
+                          "deadband,dead_time,drift", "--pv-points", points, "--json")
+        assert rc == 0
+        db[points] = json.loads(out)["params"]["DB"]
+    assert db["stored"] == pytest.approx(3.0, rel=0.05)
+    assert db["all"] < 0.95 * db["stored"], db
+    with pytest.raises(SystemExit):
+        main(["model", "fit", str(path), "--pv-points", "some"])
+    assert "--pv-points" in capsys.readouterr().err
+
+
 def test_effects_listing(capsys):
     rc, out, _ = _run(capsys, "model", "effects", "--json")
     doc = json.loads(out)

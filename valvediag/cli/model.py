@@ -33,6 +33,10 @@ def _common(p, *, effects_default: str, effects_help: str):
     p.add_argument("--reinit", choices=("fit", "measured"), default="fit",
                    help="start each segment's prediction from its best initial state (default; "
                         "robust to PV noise) or from the measured PV")
+    p.add_argument("--pv-points", choices=("all", "stored"), default="all",
+                   help="PV samples the fit scores: every one (default), or only those the "
+                        "historian stored, for a PV stored compressed and read back by straight "
+                        "lines between its stored points (the lines cut its turns short)")
     for role in ("timestamp", "pv", "op", "sp"):
         p.add_argument(f"--{role}-column", metavar="NAME",
                        help=f"name of the {role} column if it is not '{role}'")
@@ -104,7 +108,8 @@ def _load(args):
     try:
         data = prepare_loop(rec.pv, rec.op, rec.sample_time, sp=rec.sp,
                             horizon=args.horizon if args.horizon else "auto", blocks=args.blocks,
-                            name=Path(args.file).name, reinit=args.reinit)
+                            name=Path(args.file).name, reinit=args.reinit,
+                            pv_points=args.pv_points)
     except WorkbenchDataError as exc:
         raise CommandError(f"{args.file}: {exc}") from None
     return data, effects, meta

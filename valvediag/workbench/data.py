@@ -447,7 +447,10 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
         or swinging-door compression and read back by straight lines between
         its stored points. Those lines are not measurements: they cut every
         turn of the PV short, and scored as data they pull the fitted valve's
-        reversals early (a dead band sized 20-30 % small).
+        reversals early (a dead band sized 20-30 % small). The lines must be
+        exact (as interpolated in floating point): a record exported with its
+        values rounded to a few decimals has a kink at every sample, and then
+        every sample is scored.
 
     Returns
     -------
