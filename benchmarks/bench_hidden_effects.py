@@ -47,6 +47,8 @@ GRID = {
                               dict(load_drift=2e-4), dict(load_drift=-4e-4)]),
     "saturation": (("deadband",), [dict(beyond=0.05), dict(beyond=0.1), dict(beyond=0.2),
                                    dict(beyond=0.3)]),
+    "characteristic": (("deadband",), [dict(valve_curvature=0.04), dict(valve_curvature=0.1),
+                                       dict(valve_curvature=0.25), dict(valve_curvature=-0.1)]),
     "oscillating_load": (("deadband",), [
         dict(load_sin_amplitude=0.5, load_sin_period=120.0),
         dict(load_sin_amplitude=1.0, load_sin_period=300.0),

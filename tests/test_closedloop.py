@@ -101,3 +101,20 @@ def test_plot(tmp_path):
     sim = simulate_loop(kc=1.0, ti=20.0, tau=10.0, sample_time=1.0, duration=100, sp_step=1.0)
     ax = sim.plot()
     assert len(ax.get_lines()) == 2
+
+
+def test_an_equal_percentage_valve_settles_where_its_characteristic_says():
+    # self-regulating, K = 1, no load: the steady-state flow equals the PV, so
+    # after a set-point step from 50 to 60 the valve sits at the inverse of its
+    # characteristic, x0 + log1p(c (60 - x0)) / c, not at 60
+    c = 0.05
+    kw = dict(kc=0.5, ti=5.0, sample_time=0.5, duration=400.0, process="self-regulating",
+              tau=5.0, sp=50.0, sp_step=10.0, sp_step_time=10.0)
+    lin = simulate_loop(**kw)
+    eq = simulate_loop(**kw, valve_curvature=c)
+    assert lin.op[-1] == pytest.approx(60.0, abs=1e-6)
+    assert eq.op[-1] == pytest.approx(50.0 + np.log1p(c * 10.0) / c, abs=1e-6)
+    assert eq.pv[-1] == pytest.approx(60.0, abs=1e-6)
+    np.testing.assert_array_equal(simulate_loop(**kw, valve_curvature=0.0).pv, lin.pv)
+    with pytest.raises(ValueError, match="valve_curvature"):
+        simulate_loop(**kw, valve_curvature=np.inf)

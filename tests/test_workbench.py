@@ -15,6 +15,7 @@ from valvediag.workbench import (
     WorkbenchDataError,
     check_effects,
     estimate_valve_size,
+    forward_select,
     prepare_loop,
 )
 from valvediag.workbench.diagnosis import event_average, valve_breakaways
@@ -426,3 +427,44 @@ def test_workbench_documents_every_parameter(qual, func):
             documented.update(n.strip().lstrip("*") for n in m.group(1).split(","))
     missing = [p.name for p in params if p.name not in documented]
     assert not missing, f"{qual}: undocumented parameters {missing}"
+
+
+# -- the installed valve characteristic ----------------------------------------------------
+def _characteristic_loop(steps, curvature, seed=3, hours=3.0):
+    """A dead-band valve with an installed characteristic, PI on an
+    integrator, set-point steps every 25-50 min, 1 % PV noise."""
+    rng = np.random.default_rng(seed)
+    n = int(hours * 3600)
+    sp = steps(rng, n)
+    sim = simulate_loop(kc=2.0, ti=60.0, tau=60.0, sample_time=1.0, n_samples=n, sp_profile=sp,
+                        noise_std=0.002, seed=seed, valve="backlash", valve_params={"DB": 3.0},
+                        valve_curvature=curvature)
+    pv = sim.pv + 0.01 * np.ptp(sim.pv[n // 10:]) * rng.standard_normal(n)
+    return pv, sim.op, sp
+
+
+@pytest.mark.parametrize("curvature", [0.1, -0.1])
+def test_a_curved_valve_characteristic_is_found_and_sized_whatever_the_operating_point(
+        curvature, setpoint_steps):
+    """Equal-percentage (c > 0) and quick-opening (c < 0): ranked first and
+    accepted behind a dead-band model, its curvature within 25 %, and the
+    same with PV, OP and SP offset by 50 and scaled by 3 (the curvature, in
+    1/OP unit, a third)."""
+    pv, op, sp = _characteristic_loop(setpoint_steps, curvature)
+    found = []
+    for off, sc in ((0.0, 1.0), (50.0, 3.0)):
+        data = prepare_loop(off + sc * pv, off + sc * op, 1.0, sp=off + sc * sp)
+        sug = forward_select(data, ("deadband",), max_steps=1).steps[0].suggestions
+        top = sug.items[0]
+        assert top.effect == "characteristic" and top.accepted, sug.table()
+        assert top.params["curvature"] * sc == pytest.approx(curvature, rel=0.25)
+        found.append((top.params["curvature"] * sc, top.gain))
+    assert found[1] == pytest.approx(found[0], rel=1e-3)
+
+
+def test_a_linear_valve_characteristic_is_not_accepted(setpoint_steps):
+    pv, op, sp = _characteristic_loop(setpoint_steps, 0.0)
+    sug = forward_select(prepare_loop(pv, op, 1.0, sp=sp), ("deadband",),
+                         max_steps=1).steps[0].suggestions
+    assert not next(s for s in sug.items if s.effect == "characteristic").accepted
+    assert not sug.best

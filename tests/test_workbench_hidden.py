@@ -265,7 +265,7 @@ def test_lag_and_dead_time_reported_indistinguishable_on_a_short_noisy_record(se
     assert "indistinguishable" in sug.table()
 
 
-def test_blocks_share_the_moves_of_a_record_with_set_point_steps():
+def test_blocks_share_the_moves_of_a_record_with_set_point_steps(setpoint_steps):
     """A self-regulating loop with a loose valve moves its OP only after
     set-point steps (every 25-50 min, alternating): equal time blocks gave
     the training set 1 of its 11 reversals after the burn-in, and the fit
@@ -274,13 +274,7 @@ def test_blocks_share_the_moves_of_a_record_with_set_point_steps():
     a third of them."""
     rng = np.random.default_rng(4)
     n = int(4.5 * 3600)
-    sp, t, sign = np.zeros(n), 0, 1.0
-    while True:
-        t += int(rng.uniform(25, 50) * 60)
-        if t >= n:
-            break
-        sp[t:] += sign * rng.uniform(0.5, 1.5)
-        sign = -sign
+    sp = setpoint_steps(rng, n)
     sim = simulate_loop(process="self-regulating", process_gain=1.5, tau=30.0, kc=1.3, ti=20.0,
                         sample_time=1.0, n_samples=n, valve="backlash", valve_params={"DB": 3.0},
                         load_drift=5e-5, noise_std=0.002, seed=4, sp_profile=sp)

@@ -11,13 +11,14 @@ HELP = """\
 Compare a physical loop model with the measurements of one loop, see where it
 fails, learn which physical effect is missing, add it and watch the error
 fall. The model is driven by the measured OP and predicts the PV; it is made
-of named effects (deadband, stiction, saturation, dead_time, lag, bias,
-drift) on top of the plant (integrating or self-regulating). It is fitted on
+of named effects (deadband, stiction, saturation, characteristic, dead_time,
+lag, bias, drift, oscillating_load) on top of the plant (integrating or
+self-regulating). It is fitted on
 training time blocks and scored on held-out blocks.
 """
 
-EFFECTS_HELP = ("comma-separated effects: deadband, stiction, saturation, dead_time, lag, "
-                "bias, drift (see 'valvediag model effects')")
+EFFECTS_HELP = ("comma-separated effects: deadband, stiction, saturation, characteristic, "
+                "dead_time, lag, bias, drift, oscillating_load (see 'valvediag model effects')")
 
 
 def _common(p, *, effects_default: str, effects_help: str):

@@ -13,7 +13,8 @@ The loop, at every sample ``k`` (sample time ``h``)::
     I_k   = I_{k-1} + (h / ti) e_k                 integral state
     op_k  = kc (e_k + I_k), clipped to op_limits    (anti-windup by clamping I)
     mv_k  = valve(op_k), clipped to valve_limits   valve position
-    v(t)  = mv_k - load_k, held over [k h, (k+1) h) and delayed by dead_time
+    f_k   = char(mv_k)                             flow through the valve
+    v(t)  = f_k - load_k, held over [k h, (k+1) h) and delayed by dead_time
     y     <- process driven by v
 
 Processes (``K`` = ``process_gain``, ``tau`` in seconds):
@@ -40,8 +41,9 @@ __all__ = ["simulate_loop", "LoopSimulation", "process_matrices"]
 # Columns of the per-scenario parameter table handed to the kernel.
 (C_KC, C_TI, C_H, C_VCODE, C_VP0, C_VP1, C_ND, C_SP0, C_SPSTEP, C_SPT, C_LOAD0,
  C_LSTEP, C_LSTEPT, C_LDRIFT, C_LSINA, C_LSINW, C_LSINPHI, C_NOISE, C_SEED,
- C_OPLO, C_OPHI, C_X0, C_Y0, C_Z0, C_NMAX, C_LNOISE, C_VBAND, C_VLO, C_VHI) = range(29)
-N_COLS = 29
+ C_OPLO, C_OPHI, C_X0, C_Y0, C_Z0, C_NMAX, C_LNOISE, C_VBAND, C_VLO, C_VHI,
+ C_CURV) = range(30)
+N_COLS = 30
 
 
 def process_matrices(process, process_gain, tau, lag, dead_time, sample_time):
@@ -124,6 +126,7 @@ def simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_s
     op_hi = P[C_OPHI]
     v_lo = P[C_VLO]
     v_hi = P[C_VHI]
+    curv = P[C_CURV]
     # delay line: the previous nd + 1 plant inputs v_{k-nd-1} .. v_{k-1}
     L = nd + 1
     buf = np.empty(L)
@@ -221,7 +224,9 @@ def simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_s
                 return k + 1
         # plant input held over this sample: v_{k-nd-1} for the first
         # fraction of it, v_{k-nd} for the rest (exact fractional dead time)
-        v_now = x - load
+        # the installed characteristic: the flow through the valve, of unit
+        # slope at the starting position (the operating point)
+        v_now = (x if curv == 0.0 else x0 + np.expm1(curv * (x - x0)) / curv) - load
         if direct:
             v_new = v_now
             z1 = z
@@ -260,7 +265,7 @@ def parameter_table(m, *, kc, ti, sample_time, valve, valve_params, process, pro
                     lag, dead_time, sp, sp_step, sp_step_time, load, load_step, load_step_time,
                     load_drift, load_sin_amplitude, load_sin_period, load_sin_phase, noise_std,
                     seed, op_limits, load_noise_std=0.0, valve_noise_band=0.0,
-                    valve_limits=(-np.inf, np.inf)):
+                    valve_limits=(-np.inf, np.inf), valve_curvature=0.0):
     """Build the (m, N_COLS) kernel table and process matrices."""
     P = np.zeros((m, N_COLS))
 
@@ -317,6 +322,9 @@ def parameter_table(m, *, kc, ti, sample_time, valve, valve_params, process, pro
     col(C_OPHI, op_limits[1])
     col(C_VLO, valve_limits[0])
     col(C_VHI, valve_limits[1])
+    col(C_CURV, valve_curvature)
+    if np.any(~np.isfinite(P[:, C_CURV])):
+        raise ValueError("valve_curvature must be finite")
     # steady state at sp: the valve balances the load (integrating) or holds sp/K
     K = np.broadcast_to(np.asarray(process_gain, dtype=float), (m,))
     v0 = np.zeros(m) if process == "integrating" else P[:, C_SP0] / K
@@ -391,7 +399,8 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
                   load_sin_amplitude=0.0, load_sin_period=np.inf, load_sin_phase=0.0,
                   load_noise_std=0.0, noise_std=0.0, seed=None,
                   op_limits=(-np.inf, np.inf), valve_noise_band=0.0, load_profile=None,
-                  sp_profile=None, valve_limits=(-np.inf, np.inf)) -> LoopSimulation:
+                  sp_profile=None, valve_limits=(-np.inf, np.inf),
+                  valve_curvature=0.0) -> LoopSimulation:
     """Simulate PI control loops with a valve model, vectorised over scenarios.
 
     Every numeric argument may be a scalar or an array of shape (m,), one value
@@ -449,6 +458,13 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
         or a positioner's stroke limit: the model workbench's
         ``saturation``). The OP limits, by contrast, leave no trace in the
         relation between the recorded OP and the PV.
+    valve_curvature : float or array_like
+        Installed valve characteristic [1/OP unit]: the flow through the
+        valve is ``x0 + expm1(c (x - x0)) / c`` at position ``x``, of unit
+        slope at the starting position ``x0``; ``c > 0`` an equal-percentage
+        valve (its gain grows as it opens: ``c = ln R / 100`` for a
+        rangeability R over 0-100 %), ``c < 0`` a quick-opening one. 0
+        (default): linear.
     valve_noise_band : float or array_like
         Noise band of a Kano or Choudhury valve's actuator [OP unit]: the OP
         must fall back more than this from its running extreme to reverse
@@ -503,7 +519,7 @@ def simulate_loop(*, kc, ti, sample_time, duration=None, n_samples=None,
         load_sin_amplitude=load_sin_amplitude, load_sin_period=load_sin_period,
         load_sin_phase=load_sin_phase, noise_std=noise_std, seed=seed, op_limits=op_limits,
         load_noise_std=load_noise_std, valve_noise_band=valve_noise_band,
-        valve_limits=valve_limits)
+        valve_limits=valve_limits, valve_curvature=valve_curvature)
     if n_samples is None:
         if duration is not None:
             n_samples = int(np.ceil(duration / P[:, C_H].max()))

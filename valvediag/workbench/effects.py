@@ -3,7 +3,7 @@ The named physical effects of the loop model, with their parameters.
 
 A loop model is the chain::
 
-    OP -> valve (deadband | stiction, saturation) -> dead time -> lag
+    OP -> valve (deadband | stiction, saturation, characteristic) -> dead time -> lag
        -> plant input minus load (bias, drift, oscillating load) -> plant (gain) -> PV
 
 Each effect is named by a string and can be added to or removed from the
@@ -93,6 +93,16 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
                   "valve position upper stop")),
            "The valve stroke ends before the OP range does: the position is held at its stops.",
            "error only while the OP is near a limit"),
+    Effect("characteristic", "valve",
+           (Param("curvature", "1/OP unit", "+-4 / the OP's 1-99 % range", "searched",
+                  "curvature of the installed characteristic: the flow through the valve is "
+                  "m + expm1(c (x - m)) / c at position x (m: the OP's median, where its slope "
+                  "is one)"),),
+           "A non-linear installed valve characteristic: an equal-percentage valve (c > 0) "
+           "gains as it opens, a quick-opening one (c < 0) loses; the loop's gain then "
+           "changes with the operating point.",
+           "residual that grows with the OP's distance from its median, of one sign on either "
+           "side (the model's gain is right only at the median)"),
     Effect("dead_time", "delay",
            (Param("dead_time", "s", "0 to 30 % of the OP period (at most 300 samples or two horizons), "
                   "fractional samples", "searched",

@@ -62,6 +62,9 @@ class Theta:
         Not searched: each fit holds it (see :class:`Problem`).
     load_period : float
         Period of an unmeasured oscillating load [s] (infinite: none).
+    curvature : float
+        Curvature of the valve's installed characteristic [1/OP unit] (0:
+        linear; see :data:`~valvediag.workbench.effects.EFFECTS`).
     """
 
     DB: float = 0.0
@@ -75,6 +78,7 @@ class Theta:
     phase: float = 0.0
     band: float = 0.0
     load_period: float = math.inf
+    curvature: float = 0.0
 
     def replace(self, **kw) -> "Theta":
         """Copy with some fields changed.
@@ -92,6 +96,11 @@ class Theta:
         d.update(kw)
         return Theta(**d)
 
+
+#: Largest curvature of the valve characteristic searched, times the OP's
+#: 1-99 % range [-] (4: the valve's gain changes e^4 = 55-fold over it, an
+#: equal-percentage valve of rangeability 55 over its whole stroke).
+CURVATURE_MAX = 4.0
 
 #: Harmonics of an oscillating load fitted (odd: a square or triangular wave
 #: has no even ones) [-].
@@ -189,6 +198,12 @@ class Problem:
         B, names, span, knots = linear_columns(self.effects, data, self.drift_knots)
         self.lin_names, self.span, self.knots = names, span, knots
         self.oscillating = "oscillating_load" in self.effects
+        self.characteristic = "characteristic" in self.effects
+        # the characteristic's centre: the OP's median, so that shifting the
+        # OP changes nothing (its slope there is one; the gain takes the rest)
+        self.op_mid = float(np.median(data.op))
+        lo, hi = np.percentile(data.op, [1, 99])
+        self.op_span = float(hi - lo) if hi > lo else 1.0
         self._bases = {math.inf: B}
         self.p = B.shape[1]
         self._setups: dict = {}
@@ -334,7 +349,9 @@ class Problem:
         delay = theta.delay if "dead_time" in self.effects else 0.0
         us0 = p1 + (theta.phase % 1.0) * theta.J if self.vcode == HE else 0.0
         band = theta.band if self.vcode == KANO else 0.0
-        return np.array([p0, p1, lo, hi, delay, *self.matrices(theta), us0, band])
+        curv = theta.curvature if self.characteristic else 0.0
+        return np.array([p0, p1, lo, hi, delay, *self.matrices(theta), us0, band, curv,
+                         self.op_mid])
 
     def score(self, thetas) -> np.ndarray:
         """Score candidates; rows ``[sse_train, sse_heldout, gain, coef...]``.
@@ -371,7 +388,7 @@ class Problem:
         row = self.row(theta)
         x, xd, z, r = (np.empty(n) for _ in range(4))
         kernels.simulate_chain(self.u, self.vcode, row[0], row[1], row[12], row[11], row[2], row[3],
-                               row[4], *row[5:11], x, xd, z, r)
+                               row[4], *row[5:11], row[13], row[14], x, xd, z, r)
         st = self.setup(theta)
         qa = st["qa"]
         Pr = self.project(r, qa)
@@ -537,6 +554,9 @@ def _grid(prob: Problem, coarse: bool):
     if prob.oscillating:
         rel = np.linspace(-0.02, 0.02, 3 if coarse else 9)
         axes.append([dict(load_period=float(q * (1.0 + r))) for q in load_periods(d) for r in rel])
+    if prob.characteristic:
+        cs = np.linspace(-CURVATURE_MAX, CURVATURE_MAX, 9 if coarse else 25)
+        axes.append([dict(curvature=float(c / prob.op_span)) for c in cs])
     if "dead_time" in prob.effects:
         dmax = max_delay(d)
         k = 12 if coarse else int(dmax) + 1
@@ -582,6 +602,10 @@ def _continuous(prob: Problem, theta: Theta):
                 names.append(nm)
                 x0.append(v / bm)
                 steps.append(1 / 40)
+    if prob.characteristic:
+        names.append("curv")
+        x0.append(theta.curvature * prob.op_span)
+        steps.append(0.3)
     if "dead_time" in prob.effects:
         names.append("delay")
         x0.append(theta.delay)
@@ -598,7 +622,7 @@ def _continuous(prob: Problem, theta: Theta):
 
 
 def _from_vector(theta: Theta, names, v, dmax, bm, tau_max=math.inf,
-                 sat_reach=(math.inf, -math.inf)) -> Theta:
+                 sat_reach=(math.inf, -math.inf), span=1.0) -> Theta:
     kw = {}
     for nm, val in zip(names, v):
         if nm == "DB":
@@ -613,6 +637,9 @@ def _from_vector(theta: Theta, names, v, dmax, bm, tau_max=math.inf,
             kw[nm] = min(float(val) * bm, sat_reach[0])
         elif nm == "sat_high":
             kw[nm] = max(float(val) * bm, sat_reach[1])
+        elif nm == "curv":
+            c = min(max(float(val), -2.0 * CURVATURE_MAX), 2.0 * CURVATURE_MAX)
+            kw["curvature"] = c / span
         elif nm == "delay":
             kw["delay"] = min(max(float(val), 0.0), dmax)
         elif nm == "loglag":
@@ -643,7 +670,8 @@ def _refine(prob: Problem, theta: Theta, maxfev: int) -> tuple[Theta, float]:
     cache = {}
 
     def f(v):
-        th = _from_vector(theta, names, v, dmax, prob.data.band_max, tau_max, reach)
+        th = _from_vector(theta, names, v, dmax, prob.data.band_max, tau_max, reach,
+                          prob.op_span)
         if th not in cache:
             cache[th] = float(prob.score([th])[0, 0])
         return cache[th]
@@ -654,7 +682,8 @@ def _refine(prob: Problem, theta: Theta, maxfev: int) -> tuple[Theta, float]:
                                 xatol=1e-3, fatol=0.0))
     fb = f(res.x)
     if fb <= f0:
-        return _from_vector(theta, names, res.x, dmax, prob.data.band_max, tau_max, reach), fb
+        return _from_vector(theta, names, res.x, dmax, prob.data.band_max, tau_max, reach,
+                            prob.op_span), fb
     return theta, f0
 
 
@@ -679,7 +708,8 @@ def _distinct_starts(cands, scores, k):
     for i in order:
         c = cands[i]
         key = (round(c.delay, 3), round(c.lag, 6), round(c.tau, 6), c.sat_low, c.sat_high,
-               round(4 * c.J / c.S) if c.S > 0 else 0, round(c.load_period, 6))
+               round(4 * c.J / c.S) if c.S > 0 else 0, round(c.load_period, 6),
+               round(c.curvature, 9))
         if key in seen:
             continue
         seen.add(key)

@@ -4,7 +4,10 @@ Compiled kernels of the workbench: the OP-driven chain and batch scoring.
 The chain, per sample ``k`` (sample time ``h``)::
 
     x_k   = sat(valve(op_k))                 valve position      [OP unit]
-    xd_k  = x_{k - D}                        delayed position    [OP unit]
+    f_k   = char(x_k)                        flow through it     [OP unit]
+                                             (m + expm1(c (x - m)) / c,
+                                             c = 0: linear)
+    xd_k  = f_{k - D}                        delayed flow        [OP unit]
                                              (D in samples, fractional:
                                              linear interpolation)
     s_k+1 = Phi s_k + Gam xd_k               s = [z, r]: lag output and the
@@ -33,8 +36,8 @@ __all__ = ["simulate_chain", "score_batch", "turning_points", "nudge_holds"]
 
 
 @numba.njit(cache=True, inline="always")
-def _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out, x_out,
-           xd_out, z_out, keep):
+def _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, curv, mid,
+           r_out, x_out, xd_out, z_out, keep):
     n = u.shape[0]
     x, up, d, stuck, us, cause, ue = valve_init(vcode, u[0], u[0])
     if vcode == HE:
@@ -42,6 +45,8 @@ def _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g
         # initial residual force is a parameter (|us0| <= fs: at rest)
         us = us0
     x0 = min(max(u[0], lo), hi)
+    if curv != 0.0:
+        x0 = mid + np.expm1(curv * (x0 - mid)) / curv
     nd = int(np.floor(delay))
     fr = delay - nd
     # ring buffer of the last nd + 2 positions: x_{k-nd-1} .. x_k
@@ -60,7 +65,7 @@ def _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g
         x, up, d, stuck, us, cause, ue = valve_step(vcode, p0, p1, band, u[k], x, up, d, stuck, us,
                                                     cause, ue)
         xs = min(max(x, lo), hi)
-        buf[w] = xs
+        buf[w] = xs if curv == 0.0 else mid + np.expm1(curv * (xs - mid)) / curv
         xd = (1.0 - fr) * buf[ia] + fr * buf[ib] if fr > 0.0 else buf[ia]
         w = w + 1 if w + 1 < L else 0
         ia = ia + 1 if ia + 1 < L else 0
@@ -76,24 +81,24 @@ def _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g
 
 
 @numba.njit(cache=True, nogil=True)
-def simulate_chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1,
-                   x_out, xd_out, z_out, r_out):
+def simulate_chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, curv,
+                   mid, x_out, xd_out, z_out, r_out):
     """Run the chain on one OP record, keeping every intermediate signal.
 
     ``delay`` is the dead time in samples (fractional: the delayed position
     interpolates linearly between samples, which is exact for the integral
     of a held input). ``r_out[k]`` is the unit-gain plant response at sample
     ``k``, driven by the delayed, lagged valve positions before ``k``."""
-    _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out, x_out,
-           xd_out, z_out, True)
+    _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, curv, mid,
+           r_out, x_out, xd_out, z_out, True)
 
 
 @numba.njit(cache=True, inline="always")
 def _chain_response(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1,
-                    r_out):
+                    curv, mid, r_out):
     """Unit-gain plant response of the chain only (the sequential part)."""
-    _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, r_out, r_out,
-           r_out, r_out, False)
+    _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g1, curv, mid,
+           r_out, r_out, r_out, r_out, False)
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -102,7 +107,7 @@ def _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, wt, qv, WT, qW, anch
     p = WT.shape[1]
     ns = seg_start.shape[0]
     _chain_response(u, vcode, P[i, 0], P[i, 1], P[i, 12], P[i, 11], P[i, 2], P[i, 3], P[i, 4],
-                    P[i, 5], P[i, 6], P[i, 7], P[i, 8], P[i, 9], P[i, 10], r)
+                    P[i, 5], P[i, 6], P[i, 7], P[i, 8], P[i, 9], P[i, 10], P[i, 13], P[i, 14], r)
     integ = qv.shape[0] > 1 and qv[1] == 1.0
     # inner products of the projected response, per set (0 train, 1 held-out)
     rr = np.zeros(2)
@@ -210,8 +215,9 @@ def score_serial(u, vcode, P, seg_start, seg_end, seg_set, wt, qv, WT, qW, ancho
     ----------
     u : (n,) OP
     vcode : int, valve model code
-    P : (m, 13) candidates: p0, p1, lo, hi, delay [samples], f00, f01, f10, f11, g0, g1,
-        us0 (initial residual force of He's valve), band (noise band of a Kano valve)
+    P : (m, 15) candidates: p0, p1, lo, hi, delay [samples], f00, f01, f10, f11, g0, g1,
+        us0 (initial residual force of He's valve), band (noise band of a Kano valve),
+        curvature and centre of the valve's characteristic
     seg_start, seg_end : (ns,) int64 segment bounds [start, end)
     seg_set : (ns,) int64, 0 training, 1 held-out, -1 unused
     wt : (n,) 1 where a sample is scored, 0 where not (a PV sample the

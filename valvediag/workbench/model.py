@@ -460,6 +460,9 @@ def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
         params["sat_low"], params["sat_high"] = th.sat_low, th.sat_high
         units["sat_low"] = units["sat_high"] = "OP unit"
         k += 2
+    if "characteristic" in eff:
+        params["curvature"], units["curvature"] = th.curvature, "1/OP unit"
+        k += 1
     if "dead_time" in eff:
         params["dead_time"], units["dead_time"] = th.delay * h, "s"
         k += 1

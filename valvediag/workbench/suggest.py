@@ -187,11 +187,7 @@ def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -
         sl, tm = _segment_slopes(fit)
         if sl.size < 3:
             return Evidence(sig, 0.0, "too few segments")
-        tc = tm - tm.mean()
-        b = float(tc @ (sl - sl.mean()) / (tc @ tc))
-        res = sl - sl.mean() - b * tc
-        se = math.sqrt(float(res @ res) / max(sl.size - 2, 1) / float(tc @ tc))
-        stat = abs(b) / se if se > 0 else 0.0
+        b, stat = _slope_z(tm, sl)
         # slow wander: lag-1 correlation of the segment rate errors
         r1 = float(np.corrcoef(sl[:-1], sl[1:])[0, 1]) if sl.size > 3 and sl.std() > 0 else 0.0
         return Evidence(sig, float(max(stat, r1 * math.sqrt(sl.size))),
@@ -219,6 +215,37 @@ def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -
         return Evidence(sig, float(max(stat, 0.0)),
                         f"residual RMS in the {a2.size} segments near the OP extremes is "
                         f"{ratio:.2f} times that of the other {b2.size}")
+    if effect == "characteristic":
+        # per segment, the residual's rate (integrating plant) or its mean
+        # (self-regulating) against the mean squared distance of the valve
+        # from its median: a linear characteristic fitted to a curved one
+        # is right at the median and wrong, with one sign, on both sides
+        x = fit.valve
+        q = (x - np.nanmedian(x)) ** 2
+        integ = fit.model.process_type == "integrating"
+        ys, qs = [], []
+        for a, b, st in zip(d.seg_start, d.seg_end, d.seg_set):
+            y = e[a:b]
+            ok = np.isfinite(y)
+            if st < 0 or ok.sum() < 3:
+                continue
+            if integ:
+                tc = d.t[a:b][ok] - d.t[a:b][ok].mean()
+                den = float(tc @ tc)
+                if den <= 0:
+                    continue
+                ys.append(float(tc @ (y[ok] - y[ok].mean())) / den)
+            else:
+                ys.append(float(y[ok].mean()))
+            qs.append(float(q[a:b][ok].mean()))
+        ys, qs = np.array(ys), np.array(qs)
+        if ys.size < 4 or not qs.std() > 0:
+            return Evidence(sig, 0.0, "too few segments, or the valve hardly moves")
+        _, stat = _slope_z(qs, ys)
+        what = "rate" if integ else "mean"
+        return Evidence(sig, float(stat), f"the residual's {what} per segment follows the squared "
+                                          f"distance of the valve from its median ({stat:.1f} "
+                                          "standard errors)")
     if effect == "oscillating_load":
         # the residual's periodogram (unscored samples as zeros): its highest
         # peak against the median ordinate, which for white noise is
@@ -232,6 +259,15 @@ def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -
         return Evidence(sig, ratio, f"the residual's periodogram peaks at a period of "
                                     f"{1.0 / f[i]:.0f} s, {ratio:.0f} times its median")
     raise ValueError(f"unknown effect {effect!r}")
+
+
+def _slope_z(x, y) -> tuple[float, float]:
+    """Least-squares slope of ``y`` on ``x`` and its size in standard errors."""
+    xc = x - x.mean()
+    b = float(xc @ (y - y.mean()) / (xc @ xc))
+    res = y - y.mean() - b * xc
+    se = math.sqrt(float(res @ res) / max(y.size - 2, 1) / float(xc @ xc))
+    return b, (abs(b) / se if se > 0 else 0.0)
 
 
 def _travel_rate(fit: ModelFit):
@@ -484,6 +520,10 @@ def _is_null(effect: str, fit: ModelFit, base: ModelFit) -> bool:
         return p["lag"] < 0.05 * h
     if effect == "saturation":
         return not (math.isfinite(p["sat_low"]) or math.isfinite(p["sat_high"]))
+    if effect == "characteristic":
+        # its gain changes by under 5 % over the OP's range
+        lo, hi = np.percentile(fit.data.op, [1, 99])
+        return abs(p["curvature"]) * (hi - lo) < 0.05
     if effect == "oscillating_load":
         return not fit.derived.get("load_amplitude", 0.0) > 0.0
     if effect == "deadband":
