@@ -65,25 +65,14 @@ PLANTS = {
 NOISE_PCT = 1.0
 
 
-def _setpoint(rng, n):
-    """Set-point steps of 0.5-1.5 (alternating in sign) every 25-50 min."""
-    sp = np.zeros(n)
-    t, sign = 0, 1.0
-    while True:
-        t += int(rng.uniform(25, 50) * 60)
-        if t >= n:
-            return sp
-        sp[t:] += sign * rng.uniform(0.5, 1.5)
-        sign = -sign
-
-
 def simulate_case(hidden: str, point: dict, plant: str, seed: int, hours: float):
     """PV, OP, SP and the noise floor of one case."""
     from valvediag import simulate_loop
+    from valvediag.synth.cases import alternating_steps
 
     rng = np.random.default_rng(seed)
     n = int(hours * 3600)
-    kw = dict(PLANTS[plant], sample_time=1.0, n_samples=n, sp_profile=_setpoint(rng, n),
+    kw = dict(PLANTS[plant], sample_time=1.0, n_samples=n, sp_profile=alternating_steps(rng, n),
               noise_std=0.002, seed=seed, valve="backlash", valve_params={"DB": DEADBAND})
     p = dict(point)
     if hidden == "stiction":

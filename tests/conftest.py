@@ -1,6 +1,5 @@
 import os
 
-import numpy as np
 import pytest
 from hypothesis import settings
 
@@ -28,18 +27,3 @@ def prefect_api():
 
     with prefect_test_harness(server_startup_timeout=180):
         yield PREFECT_API_URL.value()
-
-
-@pytest.fixture
-def setpoint_steps():
-    """Set-point steps of 0.5-1.5, alternating in sign, every 25-50 min:
-    ``setpoint_steps(rng, n)`` -> array of ``n`` samples at 1 s."""
-    def steps(rng, n):
-        sp, t, sign = np.zeros(n), 0, 1.0
-        while True:
-            t += int(rng.uniform(25, 50) * 60)
-            if t >= n:
-                return sp
-            sp[t:] += sign * rng.uniform(0.5, 1.5)
-            sign = -sign
-    return steps

@@ -9,6 +9,7 @@ import pytest
 
 from valvediag import simulate_loop
 from valvediag.models.closedloop import process_matrices
+from valvediag.synth.cases import alternating_steps
 from valvediag.workbench import (
     EFFECTS,
     LoopModel,
@@ -430,12 +431,12 @@ def test_workbench_documents_every_parameter(qual, func):
 
 
 # -- the installed valve characteristic ----------------------------------------------------
-def _characteristic_loop(steps, curvature, seed=3, hours=3.0):
+def _characteristic_loop(curvature, seed=3, hours=3.0):
     """A dead-band valve with an installed characteristic, PI on an
     integrator, set-point steps every 25-50 min, 1 % PV noise."""
     rng = np.random.default_rng(seed)
     n = int(hours * 3600)
-    sp = steps(rng, n)
+    sp = alternating_steps(rng, n)
     sim = simulate_loop(kc=2.0, ti=60.0, tau=60.0, sample_time=1.0, n_samples=n, sp_profile=sp,
                         noise_std=0.002, seed=seed, valve="backlash", valve_params={"DB": 3.0},
                         valve_curvature=curvature)
@@ -444,13 +445,12 @@ def _characteristic_loop(steps, curvature, seed=3, hours=3.0):
 
 
 @pytest.mark.parametrize("curvature", [0.1, -0.1])
-def test_a_curved_valve_characteristic_is_found_and_sized_whatever_the_operating_point(
-        curvature, setpoint_steps):
+def test_a_curved_valve_characteristic_is_found_and_sized_whatever_the_operating_point(curvature):
     """Equal-percentage (c > 0) and quick-opening (c < 0): ranked first and
     accepted behind a dead-band model, its curvature within 25 %, and the
     same with PV, OP and SP offset by 50 and scaled by 3 (the curvature, in
     1/OP unit, a third)."""
-    pv, op, sp = _characteristic_loop(setpoint_steps, curvature)
+    pv, op, sp = _characteristic_loop(curvature)
     found = []
     for off, sc in ((0.0, 1.0), (50.0, 3.0)):
         data = prepare_loop(off + sc * pv, off + sc * op, 1.0, sp=off + sc * sp)
@@ -462,8 +462,8 @@ def test_a_curved_valve_characteristic_is_found_and_sized_whatever_the_operating
     assert found[1] == pytest.approx(found[0], rel=1e-3)
 
 
-def test_a_linear_valve_characteristic_is_not_accepted(setpoint_steps):
-    pv, op, sp = _characteristic_loop(setpoint_steps, 0.0)
+def test_a_linear_valve_characteristic_is_not_accepted():
+    pv, op, sp = _characteristic_loop(0.0)
     sug = forward_select(prepare_loop(pv, op, 1.0, sp=sp), ("deadband",),
                          max_steps=1).steps[0].suggestions
     assert not next(s for s in sug.items if s.effect == "characteristic").accepted

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 
 from valvediag import simulate_loop
+from valvediag.synth.cases import alternating_steps
 from valvediag.workbench import forward_select, prepare_loop
 from valvediag.workbench.suggest import RIVAL_T
 
@@ -265,7 +266,7 @@ def test_lag_and_dead_time_reported_indistinguishable_on_a_short_noisy_record(se
     assert "indistinguishable" in sug.table()
 
 
-def test_blocks_share_the_moves_of_a_record_with_set_point_steps(setpoint_steps):
+def test_blocks_share_the_moves_of_a_record_with_set_point_steps():
     """A self-regulating loop with a loose valve moves its OP only after
     set-point steps (every 25-50 min, alternating): equal time blocks gave
     the training set 1 of its 11 reversals after the burn-in, and the fit
@@ -274,7 +275,7 @@ def test_blocks_share_the_moves_of_a_record_with_set_point_steps(setpoint_steps)
     a third of them."""
     rng = np.random.default_rng(4)
     n = int(4.5 * 3600)
-    sp = setpoint_steps(rng, n)
+    sp = alternating_steps(rng, n)
     sim = simulate_loop(process="self-regulating", process_gain=1.5, tau=30.0, kc=1.3, ti=20.0,
                         sample_time=1.0, n_samples=n, valve="backlash", valve_params={"DB": 3.0},
                         load_drift=5e-5, noise_std=0.002, seed=4, sp_profile=sp)

@@ -41,7 +41,7 @@ import numpy as np
 from ..models.closedloop import simulate_loop
 from .plant import exception_deadband, swinging_door
 
-__all__ = ["CLASSES", "SynthLoop", "draw_loop", "loop_set"]
+__all__ = ["CLASSES", "SynthLoop", "draw_loop", "loop_set", "alternating_steps"]
 
 #: Class -> (truth verdict, process type, whether the fault shows as a limit cycle).
 CLASSES: dict[str, tuple[str, str, bool]] = {
@@ -119,6 +119,36 @@ def _random_walk(rng, n: int, h: float, step_s: float, size: float) -> np.ndarra
     k = max(2, int(n * h / step_s) + 2)
     pts = np.cumsum(rng.normal(0, size, k))
     return np.interp(np.arange(n) * h, np.arange(k) * step_s, pts - pts[0])
+
+
+def alternating_steps(rng: np.random.Generator, n: int, every_s=(1500.0, 3000.0),
+                      size=(0.5, 1.5), sample_time: float = 1.0) -> np.ndarray:
+    """Set-point steps alternating in sign, as an operator moves a loop.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    n : int
+        Samples.
+    every_s : tuple of float
+        Range of the time between steps, drawn uniformly [s].
+    size : tuple of float
+        Range of the step size, drawn uniformly [PV unit].
+    sample_time : float
+        [s]
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+        Offset from the initial set point [PV unit], 0 until the first step.
+    """
+    sp, t, sign = np.zeros(n), 0, 1.0
+    while True:
+        t += int(rng.uniform(*every_s) / sample_time)
+        if t >= n:
+            return sp
+        sp[t:] += sign * rng.uniform(*size)
+        sign = -sign
 
 
 def _sp_moves(rng, n: int, h: float, every_s: tuple[float, float], size: float) -> np.ndarray:
