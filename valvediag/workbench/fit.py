@@ -201,9 +201,10 @@ class Problem:
         self.characteristic = "characteristic" in self.effects
         # the characteristic's centre: the OP's median, so that shifting the
         # OP changes nothing (its slope there is one; the gain takes the rest)
-        self.op_mid = float(np.median(data.op))
-        lo, hi = np.percentile(data.op, [1, 99])
-        self.op_span = float(hi - lo) if hi > lo else 1.0
+        self.op_mid, self.op_span = 0.0, 1.0
+        if self.characteristic:
+            lo, self.op_mid, hi = (float(v) for v in np.percentile(data.op, [1, 50, 99]))
+            self.op_span = hi - lo if hi > lo else 1.0
         self._bases = {math.inf: B}
         self.p = B.shape[1]
         self._setups: dict = {}
