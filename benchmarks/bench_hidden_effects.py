@@ -4,8 +4,9 @@ Each case is a simulated loop whose data hold every effect of a starting
 model plus ONE more, the hidden effect; the workbench starts from the model
 without it (``forward_select``, two steps). The grid: every effect the
 workbench suggests (stiction behind a dead band, a dead band behind a linear
-valve, dead time, lag, drift, saturation, an unmeasured sinusoidal load) x
-four parameter points across its range x an integrating and a self-regulating plant x two seeds. Each record:
+valve, dead time, lag, drift, saturation, a curved valve characteristic, an
+unmeasured sinusoidal load) x four parameter points across its range x an
+integrating and a self-regulating plant x two seeds. Each record:
 4.5 h at 1 s, PI control, set-point steps every 25-50 min, measurement noise
 of 1 % of the PV's swing on the recorded PV (the noise floor of the held-out
 RMSE).
