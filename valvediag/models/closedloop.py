@@ -34,7 +34,7 @@ import numba
 import numpy as np
 from scipy.linalg import expm
 
-from .valves import VALVE_MODELS, valve_init, valve_step
+from .valves import VALVE_MODELS, valve_flow, valve_init, valve_step
 
 __all__ = ["simulate_loop", "LoopSimulation", "process_matrices"]
 
@@ -226,7 +226,7 @@ def simulate_one(P, phi_f, gam_f, phi_g, gam_g, n, out_pv, out_op, out_mv, out_s
         # fraction of it, v_{k-nd} for the rest (exact fractional dead time)
         # the installed characteristic: the flow through the valve, of unit
         # slope at the starting position (the operating point)
-        v_now = (x if curv == 0.0 else x0 + np.expm1(curv * (x - x0)) / curv) - load
+        v_now = valve_flow(x, curv, x0) - load
         if direct:
             v_new = v_now
             z1 = z

@@ -46,7 +46,7 @@ import numba
 import numpy as np
 
 __all__ = ["linear", "backlash", "kano", "choudhury", "he", "VALVE_MODELS", "apply_valve",
-           "valve_init", "valve_step"]
+           "valve_init", "valve_step", "valve_flow"]
 
 # Model codes used inside the compiled kernels.
 LINEAR, BACKLASH, KANO, CHOUDHURY, HE = 0, 1, 2, 3, 4
@@ -66,6 +66,19 @@ VALVE_MODELS: dict[str, tuple[int, tuple[str, ...]]] = {
 # Why a Kano/Choudhury valve is stuck: after a reversal, after the input came to
 # rest, or at the start of the record (centred in the band).
 _CAUSE_REVERSAL, _CAUSE_REST, _CAUSE_START = 1.0, 0.0, 2.0
+
+
+@numba.njit(cache=True, inline="always")
+def valve_flow(x, curvature, centre):
+    """Flow through a valve at position ``x`` with an installed characteristic.
+
+    ``centre + expm1(curvature (x - centre)) / curvature`` [OP unit]: of unit
+    slope at ``centre``; ``curvature`` [1/OP unit] > 0 an equal-percentage
+    valve (its gain grows as it opens), < 0 a quick-opening one, 0 linear
+    (the flow is the position)."""
+    if curvature == 0.0:
+        return x
+    return centre + np.expm1(curvature * (x - centre)) / curvature
 
 
 @numba.njit(cache=True, inline="always")

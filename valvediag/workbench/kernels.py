@@ -30,7 +30,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..models.valves import HE, valve_init, valve_step
+from ..models.valves import HE, valve_flow, valve_init, valve_step
 
 __all__ = ["simulate_chain", "score_batch", "turning_points", "nudge_holds"]
 
@@ -45,8 +45,7 @@ def _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g
         # initial residual force is a parameter (|us0| <= fs: at rest)
         us = us0
     x0 = min(max(u[0], lo), hi)
-    if curv != 0.0:
-        x0 = mid + np.expm1(curv * (x0 - mid)) / curv
+    x0 = valve_flow(x0, curv, mid)
     nd = int(np.floor(delay))
     fr = delay - nd
     # ring buffer of the last nd + 2 positions: x_{k-nd-1} .. x_k
@@ -65,7 +64,7 @@ def _chain(u, vcode, p0, p1, band, us0, lo, hi, delay, f00, f01, f10, f11, g0, g
         x, up, d, stuck, us, cause, ue = valve_step(vcode, p0, p1, band, u[k], x, up, d, stuck, us,
                                                     cause, ue)
         xs = min(max(x, lo), hi)
-        buf[w] = xs if curv == 0.0 else mid + np.expm1(curv * (xs - mid)) / curv
+        buf[w] = valve_flow(xs, curv, mid)
         xd = (1.0 - fr) * buf[ia] + fr * buf[ib] if fr > 0.0 else buf[ia]
         w = w + 1 if w + 1 < L else 0
         ia = ia + 1 if ia + 1 < L else 0
