@@ -5,11 +5,11 @@ model plus ONE more, the hidden effect; the workbench starts from the model
 without it (``forward_select``, two steps). The grid: every effect the
 workbench suggests (stiction behind a dead band, a dead band behind a linear
 valve, dead time, lag, drift, saturation, a curved valve characteristic, an
-unmeasured sinusoidal load) x four parameter points across its range x an
+unmeasured sinusoidal load, a PV read on a grid) x four parameter points across its range x an
 integrating and a self-regulating plant x two seeds. Each record:
 4.5 h at 1 s, PI control, set-point steps every 25-50 min, measurement noise
 of 1 % of the PV's swing on the recorded PV (the noise floor of the held-out
-RMSE).
+RMSE; for a PV read on a grid, the error of a perfect model of the reading).
 
 Printed per effect: how often the hidden effect is ranked first, how often a
 lag and a dead time were reported indistinguishable (and so not counted as
@@ -55,6 +55,10 @@ GRID = {
         dict(load_sin_amplitude=1.0, load_sin_period=300.0),
         dict(load_sin_amplitude=2.0, load_sin_period=900.0),
         dict(load_sin_amplitude=4.0, load_sin_period=2400.0)]),
+    # the PV read on a grid of this many noise standard deviations (the noise
+    # ahead of the quantiser); below about 5 the noise dithers the staircase away
+    "quantisation": (("deadband",), [dict(quantum=5.0), dict(quantum=10.0), dict(quantum=15.0),
+                                     dict(quantum=25.0)]),
 }
 #: The valve of every case that does not hide a valve effect [% OP].
 DEADBAND = 3.0
@@ -80,6 +84,8 @@ def simulate_case(hidden: str, point: dict, plant: str, seed: int, hours: float)
         kw.update(valve="kano", valve_params=p)
     elif hidden == "deadband":
         kw.update(valve_params=p)
+    elif hidden == "quantisation":
+        pass
     elif hidden == "saturation":
         # the valve's travel limited where the free valve spends the given share
         # of the record beyond (half above, half below); the OP itself is not
@@ -92,7 +98,17 @@ def simulate_case(hidden: str, point: dict, plant: str, seed: int, hours: float)
     sim = simulate_loop(**kw)
     pv, op = sim.pv, sim.op
     sigma = NOISE_PCT / 100.0 * np.ptp(pv[n // 10:])
+    clean = pv
     pv = pv + sigma * rng.standard_normal(n)
+    if hidden == "quantisation":
+        # read on a grid; the floor is the error of a perfect model of the
+        # reading (its expected value given the process value)
+        from valvediag.workbench.sensor import quantised_mean
+
+        step = p["quantum"] * sigma
+        pv = step * np.round(pv / step)
+        floor = float(np.sqrt(np.mean((pv - quantised_mean(clean, step, 0.0, sigma))[n // 10:] ** 2)))
+        return pv, op, kw["sp_profile"], floor
     return pv, op, kw["sp_profile"], sigma
 
 

@@ -222,7 +222,7 @@ def test_effect_names_and_units():
     assert "bias" not in LoopModel(()).candidates()
     for e in EFFECTS.values():
         for p in e.params:
-            assert p.unit and p.bounds and p.kind in ("searched", "linear")
+            assert p.unit and p.bounds and p.kind in ("searched", "linear", "read")
     assert "deadband" not in LoopModel(("stiction",)).candidates()
 
 

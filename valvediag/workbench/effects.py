@@ -5,6 +5,7 @@ A loop model is the chain::
 
     OP -> valve (deadband | stiction, saturation, characteristic) -> dead time -> lag
        -> plant input minus load (bias, drift, oscillating load) -> plant (gain) -> PV
+       -> reading (quantisation)
 
 Each effect is named by a string and can be added to or removed from the
 chain (as pvlib's ``ModelChain`` swaps named models). The plant gain is
@@ -12,8 +13,9 @@ always there: an integrator ``g = K / tau`` [PV unit / (OP unit s)] or a
 first-order plant (gain ``K`` [PV unit / OP unit], time constant ``tau`` [s]).
 
 Parameters are either *searched* (grid search, then local refinement; they
-count in the BIC like every other parameter) or *linear* (solved exactly by
-least squares for every searched candidate).
+count in the BIC like every other parameter), *linear* (solved exactly by
+least squares for every searched candidate) or *read* from the record (the
+grid of a quantised PV; they count in the BIC too).
 """
 from __future__ import annotations
 
@@ -35,8 +37,9 @@ class Param:
         %), ``'s'``.
     bounds : str
         The range searched, in words (it depends on the data).
-    kind : {'searched', 'linear'}
-        Searched on a grid and refined, or solved by least squares.
+    kind : {'searched', 'linear', 'read'}
+        Searched on a grid and refined, solved by least squares, or read
+        from the record.
     description : str
     """
 
@@ -55,7 +58,8 @@ class Effect:
     ----------
     name : str
     stage : str
-        Where it acts: ``'valve'``, ``'delay'``, ``'lag'``, ``'load'``.
+        Where it acts: ``'valve'``, ``'delay'``, ``'lag'``, ``'load'``,
+        ``'sensor'`` (the PV's reading).
     params : tuple of Param
     description : str
     signature : str
@@ -144,6 +148,21 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "loop answers it with an OP that follows the load while the valve moves linearly. "
            "It tells a disturbance from a valve fault.",
            "a periodic residual at a period of its own, unrelated to the valve's reversals"),
+    Effect("quantisation", "sensor",
+           (Param("quant_step", "PV unit", "the smallest step between the PV's distinct values",
+                  "read", "step of the grid the PV is read on"),
+            Param("quant_offset", "PV unit", "a reading of the PV", "read",
+                  "a point of that grid"),
+            Param("quant_noise", "PV unit", "0 to one step", "searched",
+                  "noise ahead of the quantiser: 0 reads a hard staircase, a step or more "
+                  "dithers it away")),
+           "The PV is read on a grid (a transmitter or analyser of coarse resolution, a "
+           "historian storing few digits): the model predicts the expected reading, a "
+           "staircase rounded by the noise ahead of the quantiser "
+           "(:func:`valvediag.workbench.sensor.quantised_mean`). Void when the PV is not on "
+           "a grid.",
+           "a staircase: an error of up to half a step that follows where the model's PV lies "
+           "within its grid cell"),
 )}
 
 #: Names of the effects, in the order the chain applies them.

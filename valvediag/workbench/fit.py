@@ -460,7 +460,10 @@ def _valve_values(prob: Problem, coarse: bool, joint: bool = False):
     bm = prob.data.band_max
     if prob.vcode == BACKLASH:
         k = 12 if coarse else 32
-        return [dict(DB=float(v)) for v in bm * np.arange(1, k + 1) / k]
+        vals = bm * np.arange(1, k + 1) / k
+        if coarse:
+            vals = np.r_[vals, barely_moving_bands(prob.data)]
+        return [dict(DB=float(v)) for v in vals]
     if prob.vcode in (KANO, HE):
         if joint:
             k, rs, phs = 8, (0.0, 1 / 3, 2 / 3, 1.0), (0.0, 0.5)
@@ -480,6 +483,24 @@ def _valve_values(prob: Problem, coarse: bool, joint: bool = False):
                     out.append(c)
         return out
     return [dict()]
+
+
+def barely_moving_bands(data: LoopData) -> np.ndarray:
+    """Dead bands just under the OP's smaller swings [OP unit].
+
+    A dead band's limit cycle can keep the OP's swings only just above the
+    band (a quantised PV, slow integral action): the valve then moves a
+    small fraction of each swing, and the training error is a valley in the
+    band about as narrow as that move, which a grid spaced by a twelfth of
+    ``band_max`` can miss altogether. These candidates sit 1 % and 4 %
+    under the 5th, 10th and 25th percentile swings between OP reversals.
+    """
+    rev = data.reversals
+    if rev.size < 3:
+        return np.array([])
+    sw = np.abs(np.diff(data.op[rev]))
+    v = np.outer(np.percentile(sw, [5, 10, 25]), [0.96, 0.99]).ravel()
+    return v[(v > 0) & (v <= data.band_max)]
 
 
 #: Farthest a saturation stop reaches into the OP's range: the OP percentile

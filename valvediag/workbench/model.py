@@ -35,6 +35,7 @@ from ..plain import finite_or_none
 from .data import LoopData, shade_heldout
 from .effects import EFFECTS, PLANT_PARAMS, check_effects
 from .fit import LOAD_HARMONICS, PROCESS_TYPES, Problem, Theta, search
+from .sensor import PVGrid, fit_quantiser, pv_grid
 
 __all__ = ["LoopModel", "ModelFit", "fit_model"]
 
@@ -187,6 +188,15 @@ class LoopModel:
             bands = (data.noise_band, 0.0)
         th0 = None
         if isinstance(start, ModelFit):
+            if set(self.effects) - set(start.effects) == {"quantisation"} \
+                    and set(start.effects) <= set(self.effects) \
+                    and self.process_type == start.model.process_type:
+                # the reading acts after the chain: the chain's fit stands, only
+                # the quantiser's noise is fitted (in _result)
+                vm = start.derived.get("valve_model", "kano")
+                prob = Problem(data, self.effects, self.process_type, self.drift_knots,
+                               vm if vm in ("kano", "he") else "kano", start.theta.band)
+                return _result(self, prob, start.theta)
             th0 = start.theta
             if "stiction" in self.effects and "stiction" not in start.effects and th0.DB > 0:
                 th0 = th0.replace(S=th0.DB, J=0.0)
@@ -425,6 +435,13 @@ def _segment_demeaned(d: LoopData) -> np.ndarray:
     return d._cache[key]
 
 
+def _pv_grid(d: LoopData) -> PVGrid:
+    """The grid of the record's PV readings (cached on the data)."""
+    if "pv_grid" not in d._cache:
+        d._cache["pv_grid"] = pv_grid(d.pv, d.pv_scored)
+    return d._cache["pv_grid"]
+
+
 def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
     d = prob.data
     ev = prob.evaluate(th)
@@ -432,7 +449,14 @@ def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
     st = prob.setup(th)
     ss = prob.sample_set
     e = ev["residual"]
+    pv_model = ev["pv_model"]
     h = d.sample_time
+    eff = model.effects
+    grid = spread = None
+    if "quantisation" in eff:
+        grid = _pv_grid(d)
+        spread, pv_model = fit_quantiser(d.pv, pv_model, ss == 0, grid)
+        e = d.pv - pv_model
     n_tr, n_he = prob.n_train, prob.n_held
     sse_tr = float(np.nansum(e[ss == 0] ** 2))
     sse_he = float(np.nansum(e[ss == 1] ** 2))
@@ -448,7 +472,6 @@ def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
     if model.process_type == "self-regulating":
         params["tau"], units["tau"] = th.tau, "s"
         k += 1
-    eff = model.effects
     if "deadband" in eff:
         params["DB"], units["DB"] = th.DB, "OP unit"
         k += 1
@@ -499,13 +522,19 @@ def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
         amp = math.hypot(lin["load_sin_1"], lin["load_cos_1"])
         derived["load_amplitude"] = amp / abs(g) if g else math.nan
         k += 1 + 2 * len(LOAD_HARMONICS)
+    if grid is not None:
+        params["quant_step"], params["quant_offset"] = grid.step, grid.offset
+        params["quant_noise"] = spread
+        units["quant_step"] = units["quant_offset"] = units["quant_noise"] = "PV unit"
+        derived["pv_levels"] = grid.levels
+        k += 3
     load = np.nan_to_num(ev["load"]) if prob.p else np.zeros(d.n)
     fit_he = 100.0 * (1.0 - math.sqrt(sse_he / y0_he)) if y0_he > 0 else math.nan
     fit_tr = 100.0 * (1.0 - math.sqrt(sse_tr / y0_tr)) if y0_tr > 0 else math.nan
     bic = n_tr * math.log(max(sse_tr, 1e-300) / n_tr) + k * math.log(n_tr)
     return ModelFit(model=model, params=params, units=units, derived=derived, t=d.t, op=d.op,
                     valve=ev["valve"], delayed=ev["delayed"], lagged=ev["lagged"], load=load,
-                    plant_input=ev["lagged"] - load, pv=d.pv, pv_model=ev["pv_model"],
+                    plant_input=ev["lagged"] - load, pv=d.pv, pv_model=pv_model,
                     residual=e, sample_set=ss, fit_pct=fit_he, fit_pct_train=fit_tr,
                     heldout_rmse=math.sqrt(sse_he / n_he), train_rmse=math.sqrt(sse_tr / n_tr),
                     bic=bic, n_params=k, n_train=n_tr, n_heldout=n_he, theta=th, data=d)

@@ -22,6 +22,7 @@ from .data import LoopData, periodogram_band
 from .diagnosis import Z99, Diagnosis, event_average, residual_ccf
 from .effects import EFFECTS, check_effects
 from .model import LoopModel, ModelFit, fit_model
+from .sensor import pv_grid, quantised_mean
 
 __all__ = ["Evidence", "Suggestion", "Suggestions", "PairComparison", "LadderStep",
            "ErrorLadder", "effect_evidence", "suggest_effects", "compare_heldout",
@@ -258,6 +259,29 @@ def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -
         ratio = float(pw[i] / np.median(pw))
         return Evidence(sig, ratio, f"the residual's periodogram peaks at a period of "
                                     f"{1.0 / f[i]:.0f} s, {ratio:.0f} times its median")
+    if effect == "quantisation":
+        # per segment, the residual regressed on the error a hard staircase
+        # would add to the model's PV (its reading less the PV); the slopes'
+        # mean in standard errors
+        grid = pv_grid(d.pv, d.pv_scored)
+        if not grid.found:
+            return Evidence(sig, 0.0, grid.describe())
+        y = fit.pv_model
+        c = quantised_mean(y, grid.step, grid.offset, 0.0) - y
+        sl = []
+        for a, b, st in zip(d.seg_start, d.seg_end, d.seg_set):
+            ok = np.isfinite(e[a:b]) & np.isfinite(c[a:b])
+            cc = c[a:b][ok]
+            if st < 0 or ok.sum() < 3 or not cc @ cc > 0:
+                continue
+            sl.append(float(cc @ e[a:b][ok]) / float(cc @ cc))
+        sl = np.array(sl)
+        if sl.size < 3 or not sl.std() > 0:
+            return Evidence(sig, 0.0, grid.describe() + "; too few segments")
+        z = float(sl.mean() / (sl.std(ddof=1) / math.sqrt(sl.size)))
+        return Evidence(sig, max(z, 0.0), f"{grid.describe()}; the residual follows the "
+                                          f"staircase's error by {sl.mean():.2f} of it "
+                                          f"({z:.1f} standard errors over {sl.size} segments)")
     raise ValueError(f"unknown effect {effect!r}")
 
 
@@ -526,6 +550,9 @@ def _is_null(effect: str, fit: ModelFit, base: ModelFit) -> bool:
         return abs(p["curvature"]) * (hi - lo) < 0.05
     if effect == "oscillating_load":
         return not fit.derived.get("load_amplitude", 0.0) > 0.0
+    if effect == "quantisation":
+        # no grid, or a staircase dithered away by the noise ahead of it
+        return not p["quant_noise"] < p["quant_step"]
     if effect == "deadband":
         return p["DB"] < 1e-6 * fit.data.band_max
     if effect == "stiction":
