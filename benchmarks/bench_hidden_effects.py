@@ -107,7 +107,8 @@ def simulate_case(hidden: str, point: dict, plant: str, seed: int, hours: float)
 
         step = p["quantum"] * sigma
         pv = step * np.round(pv / step)
-        floor = float(np.sqrt(np.mean((pv - quantised_mean(clean, step, 0.0, sigma))[n // 10:] ** 2)))
+        perfect = pv - quantised_mean(clean, step, 0.0, sigma)
+        floor = float(np.sqrt(np.mean(perfect[n // 10:] ** 2)))
         return pv, op, kw["sp_profile"], floor
     return pv, op, kw["sp_profile"], sigma
 

@@ -21,6 +21,7 @@ from valvediag.workbench import (
 )
 from valvediag.workbench.diagnosis import event_average, valve_breakaways
 from valvediag.workbench.fit import Problem, Theta, zoh_matrices
+from valvediag.workbench.sensor import pv_grid, quantised_mean
 
 
 def _sim(**kw):
@@ -468,3 +469,82 @@ def test_a_linear_valve_characteristic_is_not_accepted():
                          max_steps=1).steps[0].suggestions
     assert not next(s for s in sug.items if s.effect == "characteristic").accepted
     assert not sug.best
+
+
+# -- the PV read on a grid -----------------------------------------------------------------
+def test_quantised_mean_is_the_expected_reading():
+    """Against a Monte Carlo of the quantiser behind Gaussian noise; a hard
+    staircase without noise; the input itself once the noise spans a step."""
+    rng = np.random.default_rng(1)
+    y = np.linspace(3.1, 7.9, 25)
+    q, o = 0.5, 0.2
+    for s in (0.05, 0.15, 0.3):
+        n = s * rng.standard_normal((200_000, 1))
+        mc = (o + q * np.round((y + n - o) / q)).mean(axis=0)
+        # Monte Carlo standard error: at most 0.5 q / sqrt(200000) = 0.00056
+        assert np.abs(quantised_mean(y, q, o, s) - mc).max() < 0.003
+    assert np.array_equal(quantised_mean(y, q, o, 0.0), o + q * np.round((y - o) / q))
+    assert np.array_equal(quantised_mean(y, q, o, q), y)
+
+
+def test_pv_grid_reads_the_step_and_refuses_a_continuous_pv():
+    rng = np.random.default_rng(2)
+    x = 3.0 * np.sin(np.arange(5000) / 100.0) + 0.05 * rng.standard_normal(5000)
+    g = pv_grid(0.2 + 0.5 * np.round((x - 0.2) / 0.5))
+    assert g.found and g.step == pytest.approx(0.5, rel=1e-9)
+    assert abs((g.offset - 0.2) / 0.5 - round((g.offset - 0.2) / 0.5)) < 1e-9
+    assert not pv_grid(x).found                      # every reading distinct
+    stale = np.round(x, 1)
+    stale[::97] += 0.0123                            # readings off the grid
+    assert not pv_grid(stale).found
+
+
+def _quantised_loop(quantum, seed=5, hours=3.0):
+    """A dead-band valve, PI on an integrator, set-point steps, the PV read
+    on a grid of ``quantum`` noise standard deviations (1 % of the swing).
+    Returns the record and the RMSE of a perfect model of the reading."""
+    rng = np.random.default_rng(seed)
+    n = int(hours * 3600)
+    sp = alternating_steps(rng, n)
+    sim = simulate_loop(kc=2.0, ti=60.0, tau=60.0, sample_time=1.0, n_samples=n, sp_profile=sp,
+                        noise_std=0.002, seed=seed, valve="backlash", valve_params={"DB": 3.0})
+    sigma = 0.01 * np.ptp(sim.pv[n // 10:])
+    pv = sim.pv + sigma * rng.standard_normal(n)
+    if quantum:
+        step = quantum * sigma
+        pv = step * np.round(pv / step)
+        floor = np.sqrt(np.mean((pv - quantised_mean(sim.pv, step, 0.0, sigma))[n // 10:] ** 2))
+    else:
+        floor = sigma
+    return pv, sim.op, sp, floor
+
+
+def test_a_pv_read_on_a_grid_is_found_whatever_the_operating_point():
+    """A grid of 15 noise deviations: the quantiser is ranked first and
+    accepted behind a dead-band model, its step is the grid's, the error
+    ends within 1.3 times that of a perfect model of the reading (a model
+    of the process value alone leaves the staircase's error, q / sqrt(12):
+    about 1.5 times it), and PV, OP and SP
+    offset by 50 and scaled by 3 change neither the ranking nor the error
+    ratio."""
+    pv, op, sp, floor = _quantised_loop(15.0)
+    found = []
+    for off, sc in ((0.0, 1.0), (50.0, 3.0)):
+        data = prepare_loop(off + sc * pv, off + sc * op, 1.0, sp=off + sc * sp)
+        sug = forward_select(data, ("deadband",), max_steps=1).steps[0].suggestions
+        top = sug.items[0]
+        assert top.effect == "quantisation" and top.accepted, sug.table()
+        assert top.params["quant_step"] == pytest.approx(sc * pv_grid(pv).step, rel=1e-6)
+        assert sug.base.heldout_rmse > 1.4 * sc * floor
+        assert top.heldout_rmse < 1.3 * sc * floor, sug.table()
+        found.append(top.heldout_rmse / sug.base.heldout_rmse)
+    assert found[1] == pytest.approx(found[0], rel=1e-3)
+
+
+def test_a_continuous_pv_gets_no_quantiser():
+    pv, op, sp, _ = _quantised_loop(0.0)
+    sug = forward_select(prepare_loop(pv, op, 1.0, sp=sp), ("deadband",),
+                         max_steps=1).steps[0].suggestions
+    q = next(s for s in sug.items if s.effect == "quantisation")
+    assert not q.accepted and q.evidence.statistic == 0.0
+    assert "not on a grid" in q.evidence.summary

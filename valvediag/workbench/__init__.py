@@ -6,9 +6,9 @@ error fall.
 The loop model is a chain of named, swappable effects (as pvlib's
 ``ModelChain``), driven by the measured OP and predicting the PV::
 
-    OP -> valve (deadband | stiction, saturation) -> dead_time -> lag
-       -> plant input minus load (operating point, drift) -> plant (integrating or
-          self-regulating) -> PV
+    OP -> valve (deadband | stiction, saturation, characteristic) -> dead_time -> lag
+       -> plant input minus load (operating point, drift, oscillating load)
+       -> plant (integrating or self-regulating) -> PV -> reading (quantisation)
 
 Typical use, here on a simulated loop with a loose valve (dead band 3) and a
 dead time of 10 s that the first model lacks::
@@ -62,6 +62,7 @@ from .diagnosis import Diagnosis, WorstSegment, diagnose_fit
 from .effects import EFFECT_NAMES, EFFECTS, PLANT_PARAMS, Effect, Param, check_effects
 from .fit import Theta
 from .model import LoopModel, ModelFit, fit_model
+from .sensor import PVGrid, pv_grid, quantised_mean
 from .size import estimate_valve_size, size_window
 from .suggest import (
                       ErrorLadder,
@@ -78,5 +79,5 @@ from .suggest import (
 __all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "Diagnosis", "WorstSegment",
            "diagnose_fit", "EFFECTS", "EFFECT_NAMES", "PLANT_PARAMS", "Effect", "Param",
            "check_effects", "Theta", "LoopModel", "ModelFit", "fit_model",
-           "estimate_valve_size", "size_window", "ErrorLadder", "Evidence", "LadderStep", "Suggestion",
+           "PVGrid", "pv_grid", "quantised_mean", "estimate_valve_size", "size_window", "ErrorLadder", "Evidence", "LadderStep", "Suggestion",
            "Suggestions", "diagnose", "effect_evidence", "forward_select", "suggest_effects"]

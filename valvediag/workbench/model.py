@@ -26,9 +26,10 @@ integrating process of gain 1/60)::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.special import ndtr
 
 from ..models.valves import HE, KANO
 from ..plain import finite_or_none
@@ -49,7 +50,9 @@ class LoopModel:
     effects : str or tuple of str
         Effect names (see :data:`valvediag.workbench.EFFECTS`):
         ``'deadband'``, ``'stiction'``, ``'saturation'``, ``'dead_time'``,
-        ``'lag'``, ``'bias'``, ``'drift'``; or one comma-separated string.
+        ``'lag'``, ``'bias'``, ``'drift'``, ``'characteristic'``,
+        ``'oscillating_load'``, ``'quantisation'``; or one comma-separated
+        string.
         ``'stiction'`` replaces ``'deadband'`` (a Kano valve with ``J = 0`` is
         a dead band of width ``S``). ``'bias'``, the loop's operating point,
         is part of every model whether named or not (see Notes).
@@ -87,11 +90,15 @@ class LoopModel:
     (the searched bands are relative to the OP's swings, the errors scale
     with the PV). Its cost is one linear coefficient.
 
-    The chain is: OP -> valve (dead band or stiction, then saturation) ->
-    dead time (fractional samples interpolate) -> first-order lag -> plant
-    input minus load (bias + drift) -> plant -> PV. The load enters after
-    the lag; for a constant or slowly varying load that is the same as
-    before it.
+    The chain is: OP -> valve (dead band or stiction, then saturation and
+    the installed characteristic) -> dead time (fractional samples
+    interpolate) -> first-order lag -> plant input minus load (bias, drift,
+    oscillating load) -> plant -> PV -> reading. The load enters after the
+    lag; for a constant or slowly varying load that is the same as before
+    it. The reading (``'quantisation'``, :mod:`valvediag.workbench.sensor`)
+    acts on the chain's prediction only: the chain is fitted to the
+    readings by least squares as without it, and adding it to a fitted
+    model fits the quantiser's noise alone.
 
     References
     ----------
@@ -196,7 +203,7 @@ class LoopModel:
                 vm = start.derived.get("valve_model", "kano")
                 prob = Problem(data, self.effects, self.process_type, self.drift_knots,
                                vm if vm in ("kano", "he") else "kano", start.theta.band)
-                return _result(self, prob, start.theta)
+                return _dequantised_refit(self, prob, start.theta)
             th0 = start.theta
             if "stiction" in self.effects and "stiction" not in start.effects and th0.DB > 0:
                 th0 = th0.replace(S=th0.DB, J=0.0)
@@ -211,6 +218,8 @@ class LoopModel:
                 if best is None or sse < best[2]:
                     best = (prob, th, sse)
         prob, th, _ = best
+        if "quantisation" in self.effects:
+            return _dequantised_refit(self, prob, th)
         return _result(self, prob, th)
 
 
@@ -224,7 +233,9 @@ class ModelFit:
     params : dict
         Fitted parameters by name: ``gain``, ``tau`` (self-regulating),
         ``DB`` or ``S``, ``J``, ``sat_low``, ``sat_high``, ``dead_time``,
-        ``lag``, ``bias``, ``drift`` (units in :attr:`units`).
+        ``lag``, ``bias``, ``drift``, ``curvature``, ``load_period``,
+        ``quant_step``, ``quant_offset``, ``quant_noise`` (units in
+        :attr:`units`).
     units : dict
         Unit of each parameter.
     derived : dict
@@ -238,8 +249,8 @@ class ModelFit:
         (``lagged - load``).
     pv, pv_model, residual : numpy.ndarray
         Measured PV, model PV (each segment re-initialised to its best
-        initial state) and ``pv - pv_model`` [PV unit]; NaN outside scored
-        segments.
+        initial state; with ``'quantisation'`` its expected reading) and
+        ``pv - pv_model`` [PV unit]; NaN outside scored segments.
     sample_set : numpy.ndarray of int
         0 training, 1 held-out, -1 not scored.
     fit_pct : float
@@ -442,8 +453,61 @@ def _pv_grid(d: LoopData) -> PVGrid:
     return d._cache["pv_grid"]
 
 
-def _result(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
+#: Refits of the chain to the process values the readings allow (EM steps).
+DEQUANTISE_STEPS = 2
+
+
+def _dequantised_refit(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
+    """Fit the chain behind a quantiser: refit it to the process values the
+    readings allow, as long as the readings' training error falls.
+
+    Least squares on the readings fits the chain to a staircase. Given the
+    chain's prediction ``y`` and the quantiser's noise ``s``, the process
+    value ahead of the quantiser lies in the reading's grid cell; its
+    expectation there (a normal of mean ``y`` and deviation ``s`` truncated
+    to the cell; the point of the cell nearest ``y`` when ``s`` is 0) is
+    what the chain is refitted to, warm-started (an EM step for
+    interval-censored least squares). Each step costs one search.
+    """
+    fit = _result(model, prob, th)
+    grid = _pv_grid(prob.data)
     d = prob.data
+    for _ in range(DEQUANTISE_STEPS):
+        s = fit.params.get("quant_noise", math.inf)
+        if not (grid.found and s < grid.step):
+            break
+        y = prob.evaluate(th)["pv_model"]
+        lo = grid.offset + grid.step * (np.round((d.pv - grid.offset) / grid.step) - 0.5)
+        hi = lo + grid.step
+        v = np.clip(y, lo, hi) if s <= 0 else _truncated_mean(y, s, lo, hi)
+        v = np.where(np.isfinite(v), v, d.pv)
+        prob2 = Problem(replace(d, pv=v, _cache={}), model.effects, model.process_type,
+                        model.drift_knots, prob.valve_model if prob.vcode in (KANO, HE)
+                        else "kano", th.band)
+        th2 = search(prob2, th)
+        fit2 = _result(model, prob2, th2, readings=d)
+        if not fit2.train_rmse < fit.train_rmse:
+            break
+        fit, prob, th = fit2, prob2, th2
+    return fit
+
+
+def _truncated_mean(y, s, lo, hi):
+    """Mean of a normal (mean ``y``, deviation ``s``) truncated to ``[lo, hi]``."""
+    a, b = (lo - y) / s, (hi - y) / s
+    z = ndtr(b) - ndtr(a)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m = y + s * (np.exp(-0.5 * a * a) - np.exp(-0.5 * b * b)) / (math.sqrt(2 * math.pi) * z)
+    # far outside the cell the ratio underflows: the cell's nearer end
+    return np.where(z > 1e-12, np.clip(m, lo, hi), np.clip(y, lo, hi))
+
+
+def _result(model: LoopModel, prob: Problem, th: Theta, readings: LoopData | None = None
+            ) -> ModelFit:
+    """The fitted model at ``th``; ``readings``: the record whose PV the
+    quantiser reads and the errors are scored on, when the chain was fitted
+    to other values of it (:func:`_dequantised_refit`)."""
+    d = prob.data if readings is None else readings
     ev = prob.evaluate(th)
     sc = prob.score([th])[0]
     st = prob.setup(th)
