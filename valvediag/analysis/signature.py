@@ -988,6 +988,11 @@ def _slips(y, op, err, sp, L, thr, band, err_min, integrating):
             # the PV closes part of the error, it does not overshoot far past it
             towards = towards and abs(d[k]) <= 3.0 * abs(e_before) + err_min
         ok[i] = sp_still and abs(travel[i]) > band and grew and towards and held
+        # a jump away from the set point is a load's: no valve makes one (a
+        # slip moves the PV the way the controller drives it), so it says
+        # nothing of the valve either way
+        if np.sign(d[k]) != np.sign(e_before) and abs(e_before) >= err_min:
+            judged[i] = False
         # the OP over the jump (one step either side: a process's dead time
         # puts the OP that drives a take-up before the PV's move)
         on[i] = (op[min(n - 1, k + L)] - op[max(0, k - L)]) * np.sign(travel[i])

@@ -159,7 +159,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "The PV is read on a grid (a transmitter or analyser of coarse resolution, a "
            "historian storing few digits): the model predicts the expected reading, a "
            "staircase rounded by the noise ahead of the quantiser "
-           "(:func:`valvediag.workbench.sensor.quantised_mean`). Void when the PV is not on "
+           "(valvediag.workbench.sensor.quantised_mean). Void when the PV is not on "
            "a grid.",
            "a staircase: an error of up to half a step that follows where the model's PV lies "
            "within its grid cell"),
