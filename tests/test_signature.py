@@ -263,3 +263,30 @@ def test_a_cycles_fastest_moves_are_slips_in_a_sticky_loop_and_take_ups_behind_a
     slips, takeups = cycle_transitions(pv, _noisy(op, 0.005), H, osc.period, osc.apex_idx,
                                        0.03)
     assert takeups >= 20 and slips <= takeups / 10, (slips, takeups)
+
+
+def test_load_steps_between_slips_do_not_hide_them():
+    """Four slips back towards the set point, each followed by a load step
+    that throws the PV away from it (and a recovery as the OP moves): the
+    load's jumps are not the valve's and do not count against it."""
+    rng = np.random.default_rng(11)
+    pv, op, out, start = [], [], 40.0, 50.0
+    for i in range(4):
+        side = 1.0 if i % 2 else -1.0
+        pv.append(np.linspace(start, 50.0 + side, 300))       # stuck: the error grows
+        op.append(out - np.linspace(0, side, 300))
+        pv.append(np.full(200, 50.0 - 0.3 * side))            # slip
+        op.append(np.full(200, out - side))
+        out -= side
+        # a load step away from the set point, then the loop recovers
+        k = np.arange(300)
+        pv.append(50.0 - 0.3 * side - side * 1.5 * np.exp(-k / 60.0) * (k > 0))
+        op.append(out + side * 1.5 * (1 - np.exp(-k / 60.0)) * (k > 0))
+        out += side * 1.5
+        start = pv[-1][-1]
+    pv = np.concatenate(pv) + rng.normal(0, 0.02, 3200)
+    op = np.concatenate(op) + rng.normal(0, 0.01, 3200)
+    sp = np.full(pv.size, 50.0)
+    e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp)
+    assert e.found and e.kind == "stiction" and e.consistent >= 3, e.reason
+    assert e.events == e.consistent, e.reason
