@@ -530,8 +530,10 @@ def load_periods(data: LoopData, k: int = 2) -> np.ndarray:
 
     A load that drives the loop shows in both: in the PV, and in the OP
     that answers it. The periodogram's resolution is one cycle per record,
-    so a peak's period is known to about ``period / record`` of itself;
-    the fit refines it.
+    so a peak's period is known to about ``period / record`` of itself (15 %
+    for a 40-minute load in 4.5 hours): each peak is placed between its
+    bins by a parabola through the log powers of the three, and the fit
+    searches about it and refines it.
     """
     key = ("load_periods", k)
     if key in data._cache:
@@ -544,8 +546,12 @@ def load_periods(data: LoopData, k: int = 2) -> np.ndarray:
         if f.size < 3:
             continue
         pk = 1 + np.flatnonzero((p[1:-1] >= p[:-2]) & (p[1:-1] >= p[2:]))
+        lp = np.log(np.maximum(p, 1e-300))
         for i in pk[np.argsort(p[pk])[::-1][:k]]:
-            period = 1.0 / f[i]
+            # the peak between the bins: a parabola through the log powers
+            c = lp[i - 1] - 2.0 * lp[i] + lp[i + 1]
+            shift = 0.5 * (lp[i - 1] - lp[i + 1]) / c if c < 0 else 0.0
+            period = 1.0 / (f[i] + float(np.clip(shift, -0.5, 0.5)) * (f[1] - f[0]))
             if all(abs(period / q - 1.0) > 0.02 for q in out):
                 out.append(float(period))
     res = np.array(out[:2 * k] or [4.0 * h * 10])
@@ -574,8 +580,12 @@ def _grid(prob: Problem, coarse: bool):
         highs = np.r_[np.percentile(op, 100 - q[::-1]), np.inf]
         axes.append([dict(sat_low=float(a), sat_high=float(b)) for a in lows for b in highs])
     if prob.oscillating:
-        rel = np.linspace(-0.02, 0.02, 3 if coarse else 9)
-        axes.append([dict(load_period=float(q * (1.0 + r))) for q in load_periods(d) for r in rel])
+        # about each peak: 2 %, or a quarter of the periodogram's resolution
+        # (one cycle per record) where that is wider (a long period)
+        span = d.n * h
+        axes.append([dict(load_period=float(q * (1.0 + r))) for q in load_periods(d)
+                     for r in np.linspace(-1.0, 1.0, 3 if coarse else 9)
+                     * max(0.02, 0.25 * q / span)])
     if prob.characteristic:
         cs = np.linspace(-CURVATURE_MAX, CURVATURE_MAX, 9 if coarse else 25)
         axes.append([dict(curvature=float(c / prob.op_span)) for c in cs])

@@ -585,7 +585,8 @@ def suggest_effects(base: ModelFit, candidates=None) -> Suggestions:
     the grid-searched parameters), both against the base fit and against
     the base model evaluated at the refit's other parameters (the refit
     searches those again, and a better optimum of the base is no merit of
-    the effect), and when the fitted effect is not void (a dead time under
+    the effect; for a stiction fit that replaces a dead band, the dead band
+    is also read as ``S`` and as ``S - J``), and when the fitted effect is not void (a dead time under
     a quarter sample, a lag under 5 % of a sample, no stop, no jump on top
     of a dead band).
     """
@@ -605,9 +606,15 @@ def suggest_effects(base: ModelFit, candidates=None) -> Suggestions:
         # removed) is better than the base fit, the gain is the search's,
         # not the effect's
         ref = base
-        if f.theta != base.theta:
-            r = base.model.evaluate(data, f.theta)
-            if r.train_rmse < base.train_rmse:
+        thetas = [f.theta] if f.theta != base.theta else []
+        if eff == "stiction" and "deadband" in base.effects:
+            # the refit's valve read as a dead band: a Kano valve with a small
+            # jump moves like a dead band of width S - J and rests like one of S
+            th = f.theta
+            thetas += [th.replace(DB=th.S), th.replace(DB=max(th.S - th.J, 0.0))]
+        for t in thetas:
+            r = base.model.evaluate(data, t)
+            if r.train_rmse < ref.train_rmse:
                 ref = r
         ref_gain = 1.0 - f.heldout_rmse / ref.heldout_rmse if ref.heldout_rmse > 0 else 0.0
         acc = bool(gain >= MIN_GAIN and ref_gain >= MIN_GAIN and f.bic < ref.bic
