@@ -79,5 +79,6 @@ from .suggest import (
 __all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "Diagnosis", "WorstSegment",
            "diagnose_fit", "EFFECTS", "EFFECT_NAMES", "PLANT_PARAMS", "Effect", "Param",
            "check_effects", "Theta", "LoopModel", "ModelFit", "fit_model",
-           "PVGrid", "pv_grid", "quantised_mean", "estimate_valve_size", "size_window", "ErrorLadder", "Evidence", "LadderStep", "Suggestion",
+           "PVGrid", "pv_grid", "quantised_mean", "estimate_valve_size", "size_window",
+           "ErrorLadder", "Evidence", "LadderStep", "Suggestion",
            "Suggestions", "diagnose", "effect_evidence", "forward_select", "suggest_effects"]

@@ -586,9 +586,10 @@ def suggest_effects(base: ModelFit, candidates=None) -> Suggestions:
     the base model evaluated at the refit's other parameters (the refit
     searches those again, and a better optimum of the base is no merit of
     the effect; for a stiction fit that replaces a dead band, the dead band
-    is also read as ``S`` and as ``S - J``), and when the fitted effect is not void (a dead time under
-    a quarter sample, a lag under 5 % of a sample, no stop, no jump on top
-    of a dead band).
+    is also read as ``S`` and as ``S - J``), and when the fitted effect is
+    not void (a dead time under a quarter sample, a lag under 5 % of a
+    sample, no stop, no jump on top of a dead band, no grid or a quantiser
+    dithered away by its noise).
     """
     data = base.data
     diag = base.diagnose()
