@@ -431,6 +431,14 @@ def test_workbench_documents_every_parameter(qual, func):
     assert not missing, f"{qual}: undocumented parameters {missing}"
 
 
+def _suggestions_plain_and_shifted(pv, op, sp, start=("deadband",)):
+    """(scale, suggestions from ``start``) for the record as it is and with
+    PV, OP and SP offset by 50 and scaled by 3."""
+    for off, sc in ((0.0, 1.0), (50.0, 3.0)):
+        data = prepare_loop(off + sc * pv, off + sc * op, 1.0, sp=off + sc * sp)
+        yield sc, forward_select(data, start, max_steps=1).steps[0].suggestions
+
+
 # -- the installed valve characteristic ----------------------------------------------------
 def _characteristic_loop(curvature, seed=3, hours=3.0):
     """A dead-band valve with an installed characteristic, PI on an
@@ -453,9 +461,7 @@ def test_a_curved_valve_characteristic_is_found_and_sized_whatever_the_operating
     1/OP unit, a third)."""
     pv, op, sp = _characteristic_loop(curvature)
     found = []
-    for off, sc in ((0.0, 1.0), (50.0, 3.0)):
-        data = prepare_loop(off + sc * pv, off + sc * op, 1.0, sp=off + sc * sp)
-        sug = forward_select(data, ("deadband",), max_steps=1).steps[0].suggestions
+    for sc, sug in _suggestions_plain_and_shifted(pv, op, sp):
         top = sug.items[0]
         assert top.effect == "characteristic" and top.accepted, sug.table()
         assert top.params["curvature"] * sc == pytest.approx(curvature, rel=0.25)
@@ -529,9 +535,7 @@ def test_a_pv_read_on_a_grid_is_found_whatever_the_operating_point():
     ratio."""
     pv, op, sp, floor = _quantised_loop(15.0)
     found = []
-    for off, sc in ((0.0, 1.0), (50.0, 3.0)):
-        data = prepare_loop(off + sc * pv, off + sc * op, 1.0, sp=off + sc * sp)
-        sug = forward_select(data, ("deadband",), max_steps=1).steps[0].suggestions
+    for sc, sug in _suggestions_plain_and_shifted(pv, op, sp):
         top = sug.items[0]
         assert top.effect == "quantisation" and top.accepted, sug.table()
         assert top.params["quant_step"] == pytest.approx(sc * pv_grid(pv).step, rel=1e-6)
