@@ -17,6 +17,7 @@ from scipy.signal import periodogram
 
 from ..analysis.quality import despike, white_noise_std
 from .kernels import nudge_holds, turning_points
+from .sensor import PVGrid, pv_grid
 
 __all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "white_noise_std", "periodogram_band",
            "rebuild_compressed_op", "stored_points"]
@@ -186,6 +187,14 @@ class LoopData:
         (:meth:`valvediag.workbench.LoopModel.fit`).
         """
         return NOISE_REVERSAL * self.op_noise
+
+    @property
+    def pv_grid(self) -> PVGrid:
+        """The grid the PV's readings lie on, from the scored readings
+        (:func:`valvediag.workbench.sensor.pv_grid`; ``step`` 0 if none)."""
+        if "pv_grid" not in self._cache:
+            self._cache["pv_grid"] = pv_grid(self.pv, self.pv_scored)
+        return self._cache["pv_grid"]
 
     @property
     def n(self) -> int:

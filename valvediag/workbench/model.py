@@ -36,7 +36,7 @@ from ..plain import finite_or_none
 from .data import LoopData, shade_heldout
 from .effects import EFFECTS, PLANT_PARAMS, check_effects
 from .fit import LOAD_HARMONICS, PROCESS_TYPES, Problem, Theta, search
-from .sensor import PVGrid, fit_quantiser, pv_grid
+from .sensor import fit_quantiser
 
 __all__ = ["LoopModel", "ModelFit", "fit_model"]
 
@@ -445,13 +445,6 @@ def _segment_demeaned(d: LoopData) -> np.ndarray:
     return d._cache[key]
 
 
-def _pv_grid(d: LoopData) -> PVGrid:
-    """The grid of the record's PV readings (cached on the data)."""
-    if "pv_grid" not in d._cache:
-        d._cache["pv_grid"] = pv_grid(d.pv, d.pv_scored)
-    return d._cache["pv_grid"]
-
-
 #: Refits of the chain to the process values the readings allow (EM steps).
 DEQUANTISE_STEPS = 2
 
@@ -469,7 +462,7 @@ def _dequantised_refit(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
     interval-censored least squares). Each step costs one search.
     """
     fit = _result(model, prob, th)
-    grid = _pv_grid(prob.data)
+    grid = prob.data.pv_grid
     d = prob.data
     for _ in range(DEQUANTISE_STEPS):
         s = fit.params.get("quant_noise", math.inf)
@@ -514,8 +507,6 @@ def _result(model: LoopModel, prob: Problem, th: Theta, readings: LoopData | Non
     to other values of it (:func:`_dequantised_refit`)."""
     d = prob.data if readings is None else readings
     ev = prob.evaluate(th)
-    sc = prob.score([th])[0]
-    st = prob.setup(th)
     ss = prob.sample_set
     e = ev["residual"]
     pv_model = ev["pv_model"]
@@ -523,7 +514,7 @@ def _result(model: LoopModel, prob: Problem, th: Theta, readings: LoopData | Non
     eff = model.effects
     grid = spread = None
     if "quantisation" in eff:
-        grid = _pv_grid(d)
+        grid = d.pv_grid
         spread, pv_model = fit_quantiser(d.pv, pv_model, ss == 0, grid)
         e = d.pv - pv_model
     n_tr, n_he = prob.n_train, prob.n_held
@@ -534,7 +525,6 @@ def _result(model: LoopModel, prob: Problem, th: Theta, readings: LoopData | Non
     y0 = _segment_demeaned(d)
     y0_tr = float(np.sum(y0[ss == 0] ** 2))
     y0_he = float(np.sum(y0[ss == 1] ** 2))
-    del sc
     params: dict = {"gain": ev["gain"]}
     units = {"gain": PLANT_PARAMS[model.process_type][0].unit}
     k = 1

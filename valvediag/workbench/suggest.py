@@ -22,7 +22,7 @@ from .data import LoopData, periodogram_band
 from .diagnosis import Z99, Diagnosis, event_average, residual_ccf
 from .effects import EFFECTS, check_effects
 from .model import LoopModel, ModelFit, fit_model
-from .sensor import pv_grid, quantised_mean
+from .sensor import quantised_mean
 
 __all__ = ["Evidence", "Suggestion", "Suggestions", "PairComparison", "LadderStep",
            "ErrorLadder", "effect_evidence", "suggest_effects", "compare_heldout",
@@ -263,7 +263,7 @@ def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -
         # per segment, the residual regressed on the error a hard staircase
         # would add to the model's PV (its reading less the PV); the slopes'
         # mean in standard errors
-        grid = pv_grid(d.pv, d.pv_scored)
+        grid = d.pv_grid
         if not grid.found:
             return Evidence(sig, 0.0, grid.describe())
         y = fit.pv_model
