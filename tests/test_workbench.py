@@ -19,6 +19,7 @@ from valvediag.workbench import (
     forward_select,
     prepare_loop,
 )
+from valvediag.workbench.data import growing_swing
 from valvediag.workbench.diagnosis import event_average, valve_breakaways
 from valvediag.workbench.fit import Problem, Theta, zoh_matrices
 from valvediag.workbench.sensor import pv_grid, quantised_mean
@@ -238,11 +239,31 @@ def test_effect_names_and_units():
     # the PV runs away under an oscillating OP (an open or unstable loop)
     (np.arange(2000) / 10 + np.sin(np.arange(2000) / 30), 40 + 5 * np.sin(np.arange(2000) / 30),
      "the PV diverges"),
+    # an unstable loop: PV and OP oscillate ever wider about their means
+    (np.exp(np.arange(4000) / 1000) * np.sin(np.arange(4000) / 30),
+     40 + 5 * np.exp(np.arange(4000) / 1000) * np.sin(np.arange(4000) / 30 + 1),
+     "the OP's swing grows from window to window"),
 ])
 def test_bad_data_one_line_errors(pv, op, match):
     with pytest.raises(WorkbenchDataError, match=match) as exc:
         prepare_loop(pv, op, 1.0)
     assert "\n" not in str(exc.value)
+
+
+def test_growing_swing_reads_an_unstable_loop_and_passes_set_point_moves():
+    """A swing that grows linearly (an unstable loop behind a dead band) or
+    exponentially is read; a steady oscillation, a loop moved by set-point
+    steps of random size, and a limit cycle that grows and settles are not."""
+    t = np.arange(8000.0)
+    wave = np.sin(t / 40)
+    assert growing_swing(wave * (1 + t / 200)) is not None
+    g = growing_swing(wave * np.exp(t / 2000))
+    assert g is not None and g[1] / g[0] > 4
+    assert growing_swing(wave) is None
+    rng = np.random.default_rng(3)
+    steps = np.repeat(rng.uniform(-3, 3, 16), 500)
+    assert growing_swing(steps + 0.1 * rng.standard_normal(t.size)) is None
+    assert growing_swing(wave * np.minimum(1 + t / 500, 6.0)) is None
 
 
 @pytest.mark.parametrize("placeholder", [-9999.0, 9.9e37])

@@ -259,11 +259,22 @@ def test_lag_and_dead_time_reported_indistinguishable_on_a_short_noisy_record(se
                         lag=6.0)
     amp = 0.5 * np.ptp(sim.pv[sim.pv.size // 3:])
     pv = sim.pv + 0.03 * amp * np.random.default_rng(seed).standard_normal(sim.pv.size)
-    sug = forward_select(prepare_loop(pv, sim.op, 1.0), ("deadband",), max_steps=1).steps[0].suggestions
+    ladder = forward_select(prepare_loop(pv, sim.op, 1.0), ("deadband",), max_steps=1)
+    sug = ladder.steps[0].suggestions
     (r,) = sug.rivals
     assert not r.distinguishable and r.t < RIVAL_T, r.summary
     assert "a lag rounds the response to a step" in r.summary
     assert "indistinguishable" in sug.table()
+    # where the ladder adds one of the pair it names the other beside it
+    # (seed 1 adds a lag; on seed 2 an oscillating load fits better still)
+    step = ladder.steps[1]
+    if step.added in ("lag", "dead_time"):
+        assert {step.added, *step.alternatives} == {"lag", "dead_time"}, step.alternatives
+        assert "cannot tell them apart" in ladder.table()
+    else:
+        assert step.alternatives == () and seed != 1, step.added
+    assert ladder.rows()[1]["alternatives"] == list(step.alternatives)
+    assert ladder.steps[0].alternatives == ()
 
 
 def test_blocks_share_the_moves_of_a_record_with_set_point_steps():

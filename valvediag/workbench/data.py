@@ -20,7 +20,7 @@ from .kernels import nudge_holds, turning_points
 from .sensor import PVGrid, pv_grid
 
 __all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "white_noise_std", "periodogram_band",
-           "rebuild_compressed_op", "stored_points"]
+           "rebuild_compressed_op", "stored_points", "growing_swing"]
 
 #: Fewest segments a record must give (training plus held-out).
 MIN_SEGMENTS = 6
@@ -42,6 +42,12 @@ MIN_STORED = 50
 #: explains at least this share of its variance, and whose last quarter lies
 #: beyond its first quarter's range, diverges [-].
 DIVERGING_R2 = 0.9
+#: A swing (2-98 percentile range) that rises from each of :data:`GROWTH_WINDOWS`
+#: equal windows to the next but once, to at least this multiple of the
+#: second window's, is an unstable loop's growing oscillation (a swing
+#: growing linearly from rest ends at four times the second window's) [-].
+GROWTH_FACTOR = 3.0
+GROWTH_WINDOWS = 8
 
 
 class WorkbenchDataError(ValueError):
@@ -412,6 +418,56 @@ def _refuse_diverging(y, ok, label: str):
             "unstable loop, whose runaway a valve model cannot size")
 
 
+def growing_swing(y, ok=None) -> tuple[float, float] | None:
+    """The swing of a record that grows window after window, or None.
+
+    Parameters
+    ----------
+    y : array_like, shape (n,)
+        PV or OP [unit of ``y``].
+    ok : array_like of bool, shape (n,), optional
+        Valid samples (default: the finite ones).
+
+    Returns
+    -------
+    tuple of float or None
+        (swing of the second window, swing of the last) [unit of ``y``] when
+        the record grows; None otherwise.
+
+    Notes
+    -----
+    An unstable loop oscillates with a growing amplitude (exponentially, or
+    linearly behind a dead band) until something limits it. Growing: of
+    :data:`GROWTH_WINDOWS` equal windows of the valid samples, the swing
+    (2-98 percentile range) rises from each to the next but once, and the
+    last one's is at least :data:`GROWTH_FACTOR` times the second one's (the
+    first may be the quiet start before the first set-point step). A loop
+    moved by set-point steps and loads swings irregularly and passes; a
+    limit cycle that grows and then settles within the record passes too.
+    """
+    y = np.asarray(y, dtype=float)
+    v = y[np.flatnonzero(np.isfinite(y) if ok is None else ok)]
+    m = GROWTH_WINDOWS
+    if v.size < 8 * m:
+        return None
+    swing = np.array([np.subtract(*np.percentile(x, [98, 2])) for x in np.array_split(v, m)])
+    rises = int(np.sum(swing[1:] > swing[:-1]))
+    if rises >= m - 2 and swing[-1] >= GROWTH_FACTOR * swing[1] > 0:
+        return float(swing[1]), float(swing[-1])
+    return None
+
+
+def _refuse_growing(y, ok, label: str):
+    """Raise :class:`WorkbenchDataError` when the swing of ``y`` grows window
+    after window (:func:`growing_swing`): a model driven by the OP would fit
+    the runaway of an unstable loop, which no steady plant makes."""
+    g = growing_swing(y, ok)
+    if g is not None:
+        raise WorkbenchDataError(
+            f"the {label}'s swing grows from window to window ({g[0]:.4g} to {g[1]:.4g} over "
+            "the record): an unstable loop, whose runaway a valve model cannot size")
+
+
 def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 9,
                  band_max=None, name: str = "", op_noise: float | None = None,
                  reinit: str = "fit", pv_points: str = "all") -> LoopData:
@@ -472,7 +528,8 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
         moves or reverses fewer than :data:`MIN_REVERSALS` times (too few
         events to tell a valve's band from the process), a PV that is all
         missing or never moves (frozen), a PV (or control error) that
-        diverges (:func:`_refuse_diverging`).
+        diverges (:func:`_refuse_diverging`), or a PV or OP that swings wider
+        and wider (:func:`growing_swing`).
 
     Notes
     -----
@@ -539,6 +596,8 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
                                  "band from the process; give a longer record")
     _refuse_diverging(pv if sp is None else sp - pv, okp if sp is None else okp & np.isfinite(sp),
                       "control error" if sp is not None else "PV")
+    _refuse_growing(op, oko, "OP")
+    _refuse_growing(pv, okp, "PV")
     held = float(np.mean(dop == 0.0)) if dop.size else 0.0
     # period: twice the median spacing of the reversals (robust to start-up
     # transients and irregular cycles, unlike the ACF)

@@ -167,7 +167,10 @@ def render_workbench_report(ladder: ErrorLadder, *, name: str = "", meta: dict |
                               params=", ".join(f"{k} = {v}" for k, v in _params(s.fit))))
     rows = []
     for i, (r, st) in enumerate(zip(ladder.rows(), ladder.steps)):
-        rows.append(dict(step=i, model=r["model"], added=r["added"] or "start", k=r["n_params"],
+        added = r["added"] or "start"
+        if r["alternatives"]:
+            added += f" (or {' or '.join(r['alternatives'])}: indistinguishable)"
+        rows.append(dict(step=i, model=r["model"], added=added, k=r["n_params"],
                          fit=f"{r['fit_pct']:.1f}", rmse=f"{r['heldout_rmse']:.4g}",
                          bic=f"{r['bic']:.1f}",
                          params=", ".join(f"{k} = {v}" for k, v in _params(st.fit))))

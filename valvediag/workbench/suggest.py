@@ -650,11 +650,16 @@ class LadderStep:
     suggestions : Suggestions or None
         The candidates tried from this step (None for the last step when
         the search was not run from it).
+    alternatives : tuple of str
+        Rival effects that the record could not tell from ``added`` when it
+        was chosen (both accepted, :attr:`PairComparison.distinguishable`
+        false): ``added`` is one of them, and its name is not evidence.
     """
 
     added: str | None
     fit: ModelFit = field(repr=False)
     suggestions: Suggestions | None = field(repr=False, default=None)
+    alternatives: tuple[str, ...] = ()
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -685,12 +690,13 @@ class ErrorLadder:
         return self.steps[-1].fit
 
     def rows(self) -> list[dict]:
-        """One dict per step: model, effects, added, params, fit_pct,
-        heldout_rmse, bic, n_params."""
+        """One dict per step: model, effects, added, alternatives, params,
+        fit_pct, heldout_rmse, bic, n_params."""
         out = []
         for s in self.steps:
             f = s.fit
             out.append({"model": f.model.name, "effects": list(f.effects), "added": s.added,
+                        "alternatives": list(s.alternatives),
                         "params": dict(f.params), "fit_pct": f.fit_pct,
                         "heldout_rmse": f.heldout_rmse, "bic": f.bic, "n_params": f.n_params})
         return out
@@ -701,6 +707,9 @@ class ErrorLadder:
                  f"{'BIC':>11s}  parameters"]
         for i, r in enumerate(self.rows()):
             ps = ", ".join(f"{k}={v:.4g}" for k, v in r["params"].items())
+            if r["alternatives"]:
+                ps += (f"  ({r['added']} or {' or '.join(r['alternatives'])}: this record "
+                       "cannot tell them apart)")
             lines.append(f"{i:<4d} {r['model']:40s} {r['n_params']:3d} {r['fit_pct']:7.1f} "
                          f"{r['heldout_rmse']:14.4g} {r['bic']:11.1f}  {ps}")
         return "\n".join(lines)
@@ -756,17 +765,27 @@ def forward_select(data: LoopData, start=(), *, process_type: str = "integrating
     -------
     ErrorLadder
         Stops when no candidate is accepted.
+
+    Notes
+    -----
+    Where the best candidate has an accepted rival that the record cannot
+    tell from it (:func:`compare_heldout`), the step names the rival among
+    its :attr:`LadderStep.alternatives`: the choice between the two is not
+    evidence. The next step tries the rival again on top of the chosen one
+    and adds it only where it explains what the chosen one left.
     """
     fit = start_fit if start_fit is not None else LoopModel(start, process_type).fit(data)
     steps = []
-    added = None
+    added, alts = None, ()
     while True:
         sug = suggest_effects(fit)
-        steps.append(LadderStep(added=added, fit=fit, suggestions=sug))
+        steps.append(LadderStep(added=added, fit=fit, suggestions=sug, alternatives=alts))
         best = sug.best
         if best is None or (max_steps is not None and len(steps) - 1 >= max_steps):
             break
         fit, added = best.fit, best.effect
+        alts = tuple(e for r in sug.rivals if not r.distinguishable and added in r.effects
+                     for e in r.effects if e != added)
     return ErrorLadder(steps=tuple(steps))
 
 
