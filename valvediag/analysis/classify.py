@@ -646,7 +646,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     turns = lagged_turns(bres) if bres.verdict != "stiction" else None
     if turns is not None:
         ev["lagged_turns"] = {"bi": turns.bi, "bi_without_lag": turns.bi_without_lag,
-                              "duration": turns.duration, "lag_s": turns.lag}
+                              "duration": turns.duration, "lag_s": turns.lag,
+                              "sharp_behind_lag": sharp_behind_lag(turns)}
     if bres.verdict == "stiction":
         conf = c_data * proc_conf * (0.55 + 0.45 * _margin(bres.bi, lo, 0.15))
         reason = (f"sharp turns at the peaks (Backlash Index {bres.bi:.2f} <= {lo:g}): the valve "

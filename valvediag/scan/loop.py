@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..analysis.align import AlignedLoop, align_loop, median_spacing, to_epoch_us
-from ..analysis.classify import LoopDiagnosis, classify_loop
+from ..analysis.classify import LAG_DOUBT, LoopDiagnosis, classify_loop
 from ..analysis.quality import DataQuality, bridge_short_breaks, quality_metrics
 from ..io.registry import LoopSpec
 
@@ -56,6 +56,9 @@ COMPRESSION_PENALTY = (0.9, 0.7)
 MIN_RAW_PER_CYCLE = 10.0
 #: Loops read from the store in one query by :func:`analyse_stored_loops` [-].
 READ_LOOPS = 10
+#: The loop model's lag and the lag behind the Backlash Index's turns agree
+#: within this factor when a valve slips behind a lag (:func:`lags_agree`).
+LAG_AGREEMENT = 1.5
 
 
 def load_loop_frames(db_path, job: LoopJob) -> dict[str, pl.DataFrame]:
@@ -313,6 +316,105 @@ def valve_fault_size(aligned: AlignedLoop, a: int, b: int, fault: str,
         out.update(confidence=0.0, reason=f"the model fit failed: {type(exc).__name__}: {exc}")
     return {k: (float(f"{v:.4g}") if isinstance(v, float) and math.isfinite(v) else v)
             for k, v in out.items()}
+
+
+def lags_agree(model_lag: float, turn_lag: float) -> bool:
+    """Do the loop model's lag and the lag behind the Backlash Index's turns agree?
+
+    Parameters
+    ----------
+    model_lag : float
+        Lag fitted with the sticky valve (:func:`lag_checked_kind`) [s].
+    turn_lag : float
+        Lag fitted behind the turns
+        (:func:`valvediag.analysis.bi.lagged_turns`) [s].
+
+    Returns
+    -------
+    bool
+        True when both are positive and within :data:`LAG_AGREEMENT` of each other.
+
+    Notes
+    -----
+    Two fits of different parts of the record, the apices' shape and the
+    whole PV from the OP, see the same lag when a valve slips behind it. A
+    loose valve's curved turn is fitted by the apex fit with a lag long
+    enough to round it and by the loop model with a jump behind a shorter
+    one: over the realistic benchmark's seeds 10-19, the six loose level
+    valves whose check found a slip had model lags of 0.34-0.65 times the
+    turns' lag, and 12 of the 21 sticky ones 0.69-1.3 times it.
+    """
+    if not (model_lag > 0 and turn_lag > 0):
+        return False
+    r = model_lag / turn_lag
+    return 1.0 / LAG_AGREEMENT <= r <= LAG_AGREEMENT
+
+
+def lag_checked_kind(aligned: AlignedLoop, a: int, b: int, *, period: float = math.nan,
+                     lag: float = math.nan):
+    """Sticky or loose valve on a level, read by the loop model with the lag fitted.
+
+    Parameters
+    ----------
+    aligned : valvediag.analysis.align.AlignedLoop
+    a, b : int
+        Grid points ``[a, b)`` of the episode; the part
+        :func:`valvediag.workbench.size_window` chooses is fitted.
+    period : float, optional
+        The episode's oscillation period [s].
+    lag : float, optional
+        The lag fitted behind the turns [s] (see
+        :func:`valvediag.workbench.kind.kind_window`).
+
+    Returns
+    -------
+    valvediag.workbench.kind.ValveKind
+        Never raises: a fit that fails gives ``kind`` ``''`` and the reason.
+
+    Notes
+    -----
+    Run where the Backlash Index reads ``backlash`` or ``undecided`` and the
+    turns fitted behind a first-order lag are sharp
+    (:func:`valvediag.analysis.classify.sharp_behind_lag`): the index cannot
+    tell a dead band from a slip behind a lag, the model with the lag
+    fitted can (:func:`valvediag.workbench.kind.valve_kind`).
+    """
+    from valvediag.workbench.kind import ValveKind, kind_window, valve_kind
+
+    h = aligned.sample_time
+    off, k = kind_window(b - a, h, period=period, lag=lag)
+    a += off
+    sp = aligned.sp[a:b:k] if aligned.sp is not None else None
+    try:
+        return valve_kind(aligned.pv[a:b:k], aligned.op[a:b:k], k * h, sp=sp)
+    except Exception as exc:  # noqa: BLE001 - a check of the verdict, never a failed loop
+        return ValveKind(kind="", reason=f"the model fit failed: {type(exc).__name__}: {exc}")
+
+
+def kind_size(kind) -> dict:
+    """The size of a sticky valve from :func:`lag_checked_kind`'s fit.
+
+    Parameters
+    ----------
+    kind : valvediag.workbench.kind.ValveKind
+        A result whose ``kind`` is ``'stiction'``.
+
+    Returns
+    -------
+    dict
+        In the shape of :func:`valve_fault_size`'s result: ``S`` and ``J``
+        [OP unit], ``fit_pct``, ``heldout_rmse``, ``lag_s``, ``confidence``
+        (the held-out fit times the share of the dead band's error the slip
+        removes, full credit from 30 %), ``model`` and ``reason``.
+    """
+    fit = kind.stiction_fit
+    conf = float(np.clip(fit.fit_pct / 100.0, 0, 1) * np.clip(kind.gain / 0.3, 0, 1))
+    return {"S": float(f"{kind.S:.4g}"), "J": float(f"{kind.J:.4g}"),
+            "fit_pct": float(f"{fit.fit_pct:.4g}"),
+            "heldout_rmse": float(f"{fit.heldout_rmse:.4g}"),
+            "lag_s": float(f"{kind.lag_stiction:.4g}"), "confidence": round(conf, 2),
+            "model": "+".join(fit.model.effects),
+            "reason": f"held-out fit {fit.fit_pct:.0f} %, with the lag fitted; {kind.reason}"}
 
 
 def signature_size(evidence: Mapping, fault: str) -> dict:
@@ -621,13 +723,32 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
               oscillating_s=osc_s, time_share=osc_s / window_s if window_s else 0.0,
               severity_factors=factors, episodes=len(episodes))
     size = None
-    if config.size_estimate and verdict in VALVE_FAULTS:
+    turns = rep.evidence.get("lagged_turns") or {}
+    if (config.size_estimate and ptype == "integrating" and verdict in ("backlash", "undecided")
+            and turns.get("sharp_behind_lag")):
+        # rounded turns that are also a slip's behind a short lag: the loop
+        # model, with the lag fitted, says whether the valve slips
+        kind = lag_checked_kind(aligned, ra, rb, period=rep.period, lag=turns["lag_s"])
+        agree = lags_agree(kind.lag_stiction, turns["lag_s"])
+        ev["valve_kind"] = dict(kind.as_dict(), lags_agree=agree)
+        if kind.kind == "stiction" and agree:
+            verdict = "stiction"
+            confidence = min(0.95, confidence / LAG_DOUBT) * (0.6 + 0.4 * min(1.0, kind.t / 4.0))
+            reason = (f"sharp turns behind a {turns['lag_s']:.3g} s lag (Backlash Index "
+                      f"{turns['bi']:.2f} with the lag fitted), and {kind.reason}, the two lags "
+                      "alike; method: Backlash Index with the lag fitted, and the loop model's "
+                      f"sticky against loose valve. The Backlash Index as read: {reason}")
+            size = kind_size(kind)
+            episodes = [(a, b, dataclasses.replace(d, verdict="stiction"))
+                        if (a, b) == (ra, rb) else (a, b, d) for a, b, d in episodes]
+    if config.size_estimate and verdict in VALVE_FAULTS and size is None:
         if ptype == "self-regulating" or "stick_slip" in rep.evidence:
             # the valve signature is itself a fit of the valve behind the
             # process: its band and jump are the size (no second, slower fit)
             size = signature_size(rep.evidence, verdict)
         else:
             size = valve_fault_size(aligned, ra, rb, verdict, ptype, period=rep.period)
+    if size is not None:
         ev["size"] = size
     eps = tuple(Episode(start=_utc(aligned, a), end=_utc(aligned, b), period_s=d.period,
                         amplitude=d.amplitude, regularity=d.regularity, verdict=d.verdict,

@@ -64,7 +64,10 @@ class ScanConfig:
         Fit the workbench's loop model to every ``stiction`` or ``backlash``
         loop and put the fault's size on it (dead band, or Kano S and J, in
         OP units; :func:`valvediag.workbench.estimate_valve_size`). About a
-        second per faulty loop for a day at 1 s.
+        second per faulty loop for a day at 1 s. On a level whose Backlash
+        Index reads backlash while its turns are those of a slip behind a
+        short lag, also fit a sticky and a loose valve behind a lag and let
+        them decide (:func:`valvediag.workbench.valve_kind`; a few seconds).
 
     Raises
     ------

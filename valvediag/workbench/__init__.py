@@ -41,7 +41,8 @@ dead time of 10 s that the first model lacks::
 The PV prediction is a free simulation re-initialised every ``horizon``
 samples (to the best initial state of each segment), fitted on alternating
 training blocks and scored on held-out blocks. For the nightly scan,
-:func:`estimate_valve_size` sizes a valve fault (dead band, or S and J).
+:func:`estimate_valve_size` sizes a valve fault (dead band, or S and J), and
+:func:`valve_kind` tells a sticky from a loose valve behind a lag.
 
 References
 ----------
@@ -61,6 +62,7 @@ from .data import LoopData, WorkbenchDataError, prepare_loop
 from .diagnosis import Diagnosis, WorstSegment, diagnose_fit
 from .effects import EFFECT_NAMES, EFFECTS, PLANT_PARAMS, Effect, Param, check_effects
 from .fit import Theta
+from .kind import ValveKind, valve_kind
 from .model import LoopModel, ModelFit, fit_model
 from .sensor import PVGrid, pv_grid, quantised_mean
 from .size import estimate_valve_size, size_window
@@ -81,4 +83,5 @@ __all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "Diagnosis", "Worst
            "check_effects", "Theta", "LoopModel", "ModelFit", "fit_model",
            "PVGrid", "pv_grid", "quantised_mean", "estimate_valve_size", "size_window",
            "ErrorLadder", "Evidence", "LadderStep", "Suggestion",
-           "Suggestions", "diagnose", "effect_evidence", "forward_select", "suggest_effects"]
+           "Suggestions", "diagnose", "effect_evidence", "forward_select", "suggest_effects",
+           "ValveKind", "valve_kind"]

@@ -11,8 +11,8 @@ from ..analysis.quality import white_noise_std
 from .data import WorkbenchDataError, prepare_loop, rebuild_compressed_op, stored_points
 from .model import LoopModel
 
-__all__ = ["estimate_valve_size", "size_window", "SIZE_EFFECTS", "SIZE_MAX_SAMPLES", "SIZE_MAX_CYCLES",
-           "SIZE_SAMPLES_PER_PERIOD"]
+__all__ = ["estimate_valve_size", "size_window", "prepare_valve_record", "SIZE_EFFECTS",
+           "SIZE_MAX_SAMPLES", "SIZE_MAX_CYCLES", "SIZE_SAMPLES_PER_PERIOD"]
 
 #: Effects fitted besides the valve: a load offset and slow drift are in
 #: almost every historian record, and a dead time is confounded with the
@@ -184,32 +184,8 @@ def estimate_valve_size(pv, op, sample_time, fault, process_type="integrating", 
     out = {k: math.nan for k in keys}
     out.update(fit_pct=math.nan, heldout_rmse=math.nan, confidence=0.0,
                model="+".join((valve,) + tuple(effects)), reason="")
-    interpolated = _interpolated_share(op)
-    rebuilt_r2 = math.nan
     try:
-        op_noise = None
-        if interpolated > COMPRESSED_SHARE:
-            # a compressed OP cuts its reversals: rebuild it from the controller's law
-            # where that law explains the stored moves, keeping the noise of the stored
-            # points (the rebuilt OP is smooth; the valve's noise band is read from it)
-            rebuilt, rebuilt_r2 = rebuild_compressed_op(pv, op, sample_time, sp=sp)
-            if rebuilt_r2 >= REBUILD_R2:
-                op_noise = white_noise_std(op)
-                op = rebuilt
-        # a compressed PV's straight lines between stored points cut its turns
-        # short where it turns smoothly, as behind a dead band: only the stored
-        # samples are scored then (a sticky valve's PV turns at kinks, which the
-        # compression stores, and its lines are data: see Notes)
-        stored = valve == "deadband" and _interpolated_share(pv) > COMPRESSED_SHARE
-        data = None
-        if stored:
-            try:
-                data = prepare_loop(pv, op, sample_time, sp=sp, op_noise=op_noise,
-                                    pv_points="stored")
-            except WorkbenchDataError:
-                pass            # too few stored samples: every sample is scored
-        if data is None:
-            data = prepare_loop(pv, op, sample_time, sp=sp, op_noise=op_noise)
+        data, interpolated, rebuilt_r2 = prepare_valve_record(pv, op, sample_time, valve, sp=sp)
     except WorkbenchDataError as exc:
         out["reason"] = str(exc)
         return out
@@ -252,6 +228,65 @@ def estimate_valve_size(pv, op, sample_time, fault, process_type="integrating", 
     out["confidence"] = round(conf, 2)
     out["reason"] = "; ".join(why)
     return out
+
+
+def prepare_valve_record(pv, op, sample_time, valve: str, *, sp=None):
+    """A historian record prepared for a valve model's fit.
+
+    Parameters
+    ----------
+    pv, op : array_like, shape (n,)
+        PV [PV unit] and OP [OP unit], NaN where missing.
+    sample_time : float
+        [s]
+    valve : {'stiction', 'deadband'}
+        The valve the record will be fitted with.
+    sp : array_like, optional
+        Set point [PV unit].
+
+    Returns
+    -------
+    data : LoopData
+    interpolated : float
+        Share of the OP's samples on straight lines between stored points [-].
+    rebuilt_r2 : float
+        Share of the stored OP moves the controller's law explains, where the
+        OP was compressed (NaN otherwise) [-].
+
+    Raises
+    ------
+    WorkbenchDataError
+        What :func:`~valvediag.workbench.data.prepare_loop` refuses.
+
+    Notes
+    -----
+    An OP compressed on more than :data:`COMPRESSED_SHARE` of its samples is
+    rebuilt between its stored points from the controller's law where that
+    law explains at least :data:`REBUILD_R2` of its stored moves (a straight
+    line between them cuts each reversal), with the noise band read from the
+    stored points. A PV so compressed is scored on its stored samples only
+    for a dead band (its lines cut a smooth turn short; see
+    :func:`estimate_valve_size`), on every sample for a sticky valve (its
+    kinks are stored).
+    """
+    interpolated = _interpolated_share(op)
+    rebuilt_r2 = math.nan
+    op_noise = None
+    if interpolated > COMPRESSED_SHARE:
+        # a compressed OP cuts its reversals: rebuild it from the controller's law
+        # where that law explains the stored moves, keeping the noise of the stored
+        # points (the rebuilt OP is smooth; the valve's noise band is read from it)
+        rebuilt, rebuilt_r2 = rebuild_compressed_op(pv, op, sample_time, sp=sp)
+        if rebuilt_r2 >= REBUILD_R2:
+            op_noise = white_noise_std(op)
+            op = rebuilt
+    if valve == "deadband" and _interpolated_share(pv) > COMPRESSED_SHARE:
+        try:
+            return (prepare_loop(pv, op, sample_time, sp=sp, op_noise=op_noise,
+                                 pv_points="stored"), interpolated, rebuilt_r2)
+        except WorkbenchDataError:
+            pass            # too few stored samples: every sample is scored
+    return prepare_loop(pv, op, sample_time, sp=sp, op_noise=op_noise), interpolated, rebuilt_r2
 
 
 def _parsimonious_fit(data, valve: str, effects: tuple, process_type: str):
