@@ -37,6 +37,7 @@ dead time of 10 s that the first model lacks::
     step model               k  fit %  held-out RMSE       BIC  parameters
     0    deadband            3   97.0       0.008926  -17013.3  gain=0.03189, DB=3.814, bias=-3.91e-05
     1    deadband+dead_time  4   98.3       0.005055  -19385.7  gain=0.01667, DB=2.999, dead_time=10, bias=4.608e-06
+         (dead_time or lag: this record cannot tell them apart)
 
 The PV prediction is a free simulation re-initialised every ``horizon``
 samples (to the best initial state of each segment), fitted on alternating
