@@ -720,6 +720,7 @@ def test_a_file_with_most_rows_quarantined_is_named_with_an_example(tmp_path):
     (['"12,5"', '"0,25"', "3"], [12.5, 0.25, 3.0], []),             # decimal commas
     (['"1,234"', '"2,500"'], [], ["'1,234'", "'2,500'"]),           # a thousands separator?
     (['"1,5"', "2.5"], [2.5], ["'1,5'"]),                          # decimal points elsewhere
+    (['"1,5"', "0.0", "-0.0"], [0.0, -0.0], ["'1,5'"]),             # a point, whole values
 ])
 def test_quoted_decimal_commas_in_a_comma_separated_export(tmp_path, values, stored,
                                                            quarantined):
@@ -728,3 +729,17 @@ def test_quoted_decimal_commas_in_a_comma_separated_export(tmp_path, values, sto
     samples, quarantine = read_export(write(tmp_path, "c.csv", text))
     assert samples.sort("ts")["value"].to_list() == stored
     assert [r.split(" ", 2)[2] for r in quarantine["reason"].to_list()] == quarantined
+
+
+def test_a_parquet_text_value_with_a_comma_is_not_a_decimal(tmp_path):
+    """Parquet types its numbers: a text value "1,5" beside whole numbers
+    (which a comma-separated file's detection would read as decimal commas)
+    is quarantined, not read as 1.5."""
+    import datetime as dt
+
+    ts = [dt.datetime(2024, 1, 1, 0, 0, i, tzinfo=dt.timezone.utc) for i in range(3)]
+    path = tmp_path / "p.parquet"
+    pl.DataFrame({"tag": ["A"] * 3, "timestamp": ts, "value": ["1,5", "0", "2"]}).write_parquet(path)
+    samples, quarantine = read_export(path)
+    assert sorted(samples["value"].to_list()) == [0.0, 2.0]
+    assert quarantine.height == 1 and "'1,5'" in quarantine["reason"][0]

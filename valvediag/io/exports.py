@@ -558,27 +558,30 @@ def _decimal_commas(t: pl.Series, num: pl.Series) -> bool:
     """Does a value column of a comma-separated file write decimal commas?
 
     Such values are quoted (``"12,5"``). ``num`` is the column read with
-    decimal points. The commas are read as decimals when no value read has a
-    fractional part (no decimal point in use) and at least one comma value
-    has other than three digits after its comma: ``"1,234"`` alone could be
-    a thousands separator, and stays quarantined. Only the values that did
-    not read as numbers are searched.
+    decimal points. The commas are read as decimals when no value that read
+    as a number is written with a decimal point (``"0.0"`` shows the point in
+    use, whole as its value is) and at least one comma value has other than
+    three digits after its comma: ``"1,234"`` alone could be a thousands
+    separator, and stays quarantined. Only the values that did not read as
+    numbers are searched.
     """
     failed = t.filter(num.is_null() & t.is_not_null())
     comma = failed.str.contains(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
     if not comma.any():
         return False
-    read = num.drop_nulls()
-    read = read.filter(read.is_finite())
-    if read.len() and bool((read != read.round()).any()):
+    if bool(t.filter(num.is_not_null()).str.contains(".", literal=True).any()):
         return False
     digits = failed.filter(comma).str.extract(r",(\d+)").str.len_chars()
     return bool((digits != 3).any())
 
 
-def _value_frame(text: pl.Series, states: frozenset[str], decimal_comma: bool
+def _value_frame(text: pl.Series, states: frozenset[str], decimal_comma: bool | None
                  ) -> pl.DataFrame:
     """Classify a text value column: ``value, state, vreason`` per row.
+
+    ``decimal_comma``: True reads every comma as a decimal comma (a ``;`` or
+    tab separated file), None detects them (:func:`_decimal_commas`, a
+    comma-separated file), False never (Parquet, whose numbers are typed).
 
     Numbers become values; NaN/inf and known state texts become bad samples
     (value null, text kept); anything else gets a reason. The state lookup
@@ -587,7 +590,7 @@ def _value_frame(text: pl.Series, states: frozenset[str], decimal_comma: bool
     t = text.str.strip_chars()
     num = (t.str.replace(",", ".", literal=True) if decimal_comma else t).cast(
         pl.Float64, strict=False)
-    if not decimal_comma and num.null_count() > t.null_count() and _decimal_commas(t, num):
+    if decimal_comma is None and num.null_count() > t.null_count() and _decimal_commas(t, num):
         num = t.str.replace(",", ".", literal=True).cast(pl.Float64, strict=False)
     candidates = t.filter(num.is_null()).drop_nulls().unique().to_list()
     state_texts = [c for c in candidates if " ".join(c.lower().split()) in states]
@@ -611,7 +614,7 @@ def _numeric_value_frame(values: pl.Series) -> pl.DataFrame:
     )
 
 
-def _classify_values(values: pl.Series, states: frozenset[str], decimal_comma: bool
+def _classify_values(values: pl.Series, states: frozenset[str], decimal_comma: bool | None
                      ) -> pl.DataFrame:
     if values.dtype.is_numeric() or values.dtype == pl.Boolean:
         return _numeric_value_frame(values)
@@ -741,7 +744,7 @@ def _split_fields(rows: pl.DataFrame, n: int, sep: str) -> tuple[pl.DataFrame, p
 # long / wide normalisation
 # --------------------------------------------------------------------------
 def _long_samples(frame: pl.DataFrame, lay: _Layout, path: str, timezone: str | None,
-                  states: frozenset[str], decimal_comma: bool, naive_error: bool
+                  states: frozenset[str], decimal_comma: bool | None, naive_error: bool
                   ) -> tuple[pl.DataFrame, pl.DataFrame]:
     """``frame`` has ``line`` and the layout's columns renamed to time/tag/value/status."""
     frame = _resolve_times(frame, "time", timezone, path, naive_error)
@@ -772,7 +775,7 @@ def _long_samples(frame: pl.DataFrame, lay: _Layout, path: str, timezone: str | 
 
 
 def _wide_samples(frame: pl.DataFrame, lay: _Layout, path: str, timezone: str | None,
-                  states: frozenset[str], decimal_comma: bool, naive_error: bool
+                  states: frozenset[str], decimal_comma: bool | None, naive_error: bool
                   ) -> tuple[pl.DataFrame, pl.DataFrame]:
     """``frame`` has ``line``, ``time`` and one column per tag, named by position
     (``f<i>``, see :class:`_Layout`); the tag of a sample is its column's name in
@@ -1054,7 +1057,7 @@ def _slices(frame: pl.DataFrame, chunk_rows: int | None) -> Iterator[pl.DataFram
 
 
 def _samples_from(path: str, lay: _Layout, fields: pl.DataFrame, timezone: str | None,
-                  states: frozenset[str], decimal_comma: bool, naive_error: bool
+                  states: frozenset[str], decimal_comma: bool | None, naive_error: bool
                   ) -> tuple[pl.DataFrame, pl.DataFrame]:
     """Samples and bad rows from a frame with ``line`` and the file's columns as
     ``f0..f{n-1}`` (by position, see :class:`_Layout`)."""
@@ -1081,7 +1084,8 @@ def _parse_csv(path: str, timezone: str | None, states: frozenset[str],
         notes.append(f"{path}: header only, no data rows")
     for k, part in enumerate(_slices(body, chunk_rows)):
         fields, malformed = _split_fields(part, len(columns), sep)
-        good, bad = _samples_from(path, lay, fields, timezone, states, sep != ",", k == 0)
+        good, bad = _samples_from(path, lay, fields, timezone, states,
+                                  True if sep != "," else None, k == 0)
         yield _finish(path, lay.shape, good, [malformed.select("line", "reason"), bad],
                       lines, notes)
         notes = []

@@ -133,6 +133,10 @@ class ValveKind:
     def plot(self, ax=None):
         """The measured PV with the sticky valve's model, the dead band's drawn for comparison.
 
+        Parameters
+        ----------
+        ax : matplotlib.axes.Axes, optional
+
         Returns
         -------
         matplotlib.axes.Axes
