@@ -31,7 +31,7 @@ __all__ = ["ValveKind", "valve_kind", "kind_window", "KIND_EFFECTS", "KIND_MAX_S
 #: Index mistakes for a dead band, and a dead time.
 KIND_EFFECTS = ("lag", "dead_time")
 #: Most samples fitted [-].
-KIND_MAX_SAMPLES = 43_200
+KIND_MAX_SAMPLES = 21_600
 #: A record is subsampled no coarser than this many steps per lag: a slip
 #: behind the lag must span samples for the fit to see its shape [-].
 KIND_STEPS_PER_LAG = 8.0
@@ -64,16 +64,18 @@ def kind_window(n: int, sample_time: float, *, period: float = math.nan,
     than ``lag / KIND_STEPS_PER_LAG`` (a slip behind a lag of 2 % of the
     period spans two or three samples at 120 per period, and the comparison
     loses it: measured on a level of 300 s with a 20 s lag, six standard
-    errors at 1 s and 2 s, one at 4 s and 7 s) and at most
-    :data:`KIND_MAX_SAMPLES` fitted samples. The many cycles matter as much
-    as the step: on a sawtooth cycle of 22 minutes the fit found the slip in
-    24 hours at every step from 2 s to 10 s, and not always in 6 or 12 hours.
+    errors at 1 s and 2 s, one at 4 s and 7 s), and no finer than keeps
+    the span within :data:`KIND_MAX_SAMPLES` fitted samples. The many cycles
+    matter as much as the step: on a sawtooth cycle of 22 minutes the fit
+    found the slip in 24 hours at every step from 2 s to 10 s, and not
+    always in 6 or 12 hours, so a long span is thinned, not cut.
     """
     h = float(sample_time)
     a, k = size_window(n, h, period)
     if math.isfinite(lag) and lag > 0:
         k = max(1, min(k, int(lag / (KIND_STEPS_PER_LAG * h))))
-    a = max(a, n - KIND_MAX_SAMPLES * k)
+    # the size fit's span kept whole, at a coarser step if it holds too many samples
+    k = max(k, math.ceil((n - a) / KIND_MAX_SAMPLES))
     a += (n - 1 - a) % k
     return a, k
 
