@@ -359,12 +359,11 @@ def lag_checked_kind(aligned: AlignedLoop, a: int, b: int, *, period: float = ma
     aligned : valvediag.analysis.align.AlignedLoop
     a, b : int
         Grid points ``[a, b)`` of the episode; the part
-        :func:`valvediag.workbench.size_window` chooses is fitted.
+        :func:`valvediag.workbench.kind.kind_window` chooses is fitted.
     period : float, optional
         The episode's oscillation period [s].
     lag : float, optional
-        The lag fitted behind the turns [s] (see
-        :func:`valvediag.workbench.kind.kind_window`).
+        The lag fitted behind the turns [s].
 
     Returns
     -------
@@ -404,11 +403,12 @@ def kind_size(kind) -> dict:
     dict
         In the shape of :func:`valve_fault_size`'s result: ``S`` and ``J``
         [OP unit], ``fit_pct``, ``heldout_rmse``, ``lag_s``, ``confidence``
-        (the held-out fit times the share of the dead band's error the slip
-        removes, full credit from 30 %), ``model`` and ``reason``.
+        (the held-out fit times how clearly the slip shows: the paired
+        held-out comparison's standard errors over 4, at most 1), ``model``
+        and ``reason``.
     """
     fit = kind.stiction_fit
-    conf = float(np.clip(fit.fit_pct / 100.0, 0, 1) * np.clip(kind.gain / 0.3, 0, 1))
+    conf = float(np.clip(fit.fit_pct / 100.0, 0, 1) * np.clip(kind.t / 4.0, 0, 1))
     return {"S": float(f"{kind.S:.4g}"), "J": float(f"{kind.J:.4g}"),
             "fit_pct": float(f"{fit.fit_pct:.4g}"),
             "heldout_rmse": float(f"{fit.heldout_rmse:.4g}"),
