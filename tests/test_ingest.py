@@ -739,7 +739,8 @@ def test_a_parquet_text_value_with_a_comma_is_not_a_decimal(tmp_path):
 
     ts = [dt.datetime(2024, 1, 1, 0, 0, i, tzinfo=dt.timezone.utc) for i in range(3)]
     path = tmp_path / "p.parquet"
-    pl.DataFrame({"tag": ["A"] * 3, "timestamp": ts, "value": ["1,5", "0", "2"]}).write_parquet(path)
+    frame = pl.DataFrame({"tag": ["A"] * 3, "timestamp": ts, "value": ["1,5", "0", "2"]})
+    frame.write_parquet(path)
     samples, quarantine = read_export(path)
     assert sorted(samples["value"].to_list()) == [0.0, 2.0]
     assert quarantine.height == 1 and "'1,5'" in quarantine["reason"][0]
