@@ -314,6 +314,11 @@ def valve_fault_size(aligned: AlignedLoop, a: int, b: int, fault: str,
         keys = ("S", "J") if fault == "stiction" else ("DB",)
         out = {k: math.nan for k in keys}
         out.update(confidence=0.0, reason=f"the model fit failed: {type(exc).__name__}: {exc}")
+    return _four_digits(out)
+
+
+def _four_digits(out: dict) -> dict:
+    """A size's floats to four significant digits (NaN and text unchanged)."""
     return {k: (float(f"{v:.4g}") if isinstance(v, float) and math.isfinite(v) else v)
             for k, v in out.items()}
 
@@ -409,12 +414,11 @@ def kind_size(kind) -> dict:
     """
     fit = kind.stiction_fit
     conf = float(np.clip(fit.fit_pct / 100.0, 0, 1) * np.clip(kind.t / 4.0, 0, 1))
-    return {"S": float(f"{kind.S:.4g}"), "J": float(f"{kind.J:.4g}"),
-            "fit_pct": float(f"{fit.fit_pct:.4g}"),
-            "heldout_rmse": float(f"{fit.heldout_rmse:.4g}"),
-            "lag_s": float(f"{kind.lag_stiction:.4g}"), "confidence": round(conf, 2),
-            "model": "+".join(fit.model.effects),
-            "reason": f"held-out fit {fit.fit_pct:.0f} %, with the lag fitted; {kind.reason}"}
+    return _four_digits({
+        "S": kind.S, "J": kind.J, "fit_pct": float(fit.fit_pct),
+        "heldout_rmse": float(fit.heldout_rmse), "lag_s": kind.lag_stiction,
+        "confidence": round(conf, 2), "model": "+".join(fit.model.effects),
+        "reason": f"held-out fit {fit.fit_pct:.0f} %, with the lag fitted; {kind.reason}"})
 
 
 def signature_size(evidence: Mapping, fault: str) -> dict:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from ..plain import finite_or_none
 from .data import WorkbenchDataError
 from .model import LoopModel, ModelFit
 from .size import NO_JUMP, prepare_valve_record, size_window
@@ -125,7 +126,7 @@ class ValveKind:
     def as_dict(self) -> dict:
         """The figures as plain types (NaN as None)."""
         def num(x):
-            return round(float(x), 4) if math.isfinite(x) else None
+            return finite_or_none(x, 4)
 
         return {"kind": self.kind, "S": num(self.S), "J": num(self.J), "DB": num(self.DB),
                 "lag_stiction_s": num(self.lag_stiction),
