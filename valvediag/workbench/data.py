@@ -32,6 +32,9 @@ NOISE_REVERSAL = 6.0
 #: Time blocks are rebalanced by the OP's reversals when one holds fewer than
 #: this share of the mean reversals per block [-].
 BURSTY_BLOCK = 0.5
+#: Shifts of the rebalanced block edges tried, in blocks, until each set
+#: holds a third of the reversals [-].
+BLOCK_SHIFTS = (0.0, 0.25, 0.5, 0.75)
 #: Fewest reversals of the OP a record must show: each one is where a valve's
 #: band shows; with fewer, a band is not told from the process [-].
 MIN_REVERSALS = 4
@@ -649,7 +652,17 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
     if nrev.sum() > 0 and per_block.min() < BURSTY_BLOCK * per_block.mean():
         share = 0.5 / nseg + 0.5 * nrev / nrev.sum()
         mid = np.cumsum(share) - 0.5 * share
-        block_of = np.minimum((mid * blocks).astype(np.int64), blocks - 1)
+        # a few bursts, each about a block's share, can still fall all in one
+        # set: the block edges are then shifted by a fraction of a block, to
+        # the first shift that gives each set at least a third of the reversals
+        for shift in BLOCK_SHIFTS:
+            cand = np.minimum((mid * blocks + shift).astype(np.int64), blocks)
+            per_set = np.bincount(cand % 2, weights=nrev, minlength=2)
+            if shift == 0.0 or per_set.min() > best[0]:
+                best = (per_set.min(), cand)
+            if best[0] >= nrev.sum() / 3.0:
+                break
+        block_of = best[1]
     sets = (block_of % 2).astype(np.int64)
     # segments with missing data are not used
     bad = ~(okp & oko)
