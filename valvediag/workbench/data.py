@@ -655,12 +655,13 @@ def prepare_loop(pv, op, sample_time, *, sp=None, horizon="auto", blocks: int = 
         # a few bursts, each about a block's share, can still fall all in one
         # set: the block edges are then shifted by a fraction of a block, to
         # the first shift that gives each set at least a third of the reversals
+        best = None
         for shift in BLOCK_SHIFTS:
             cand = np.minimum((mid * blocks + shift).astype(np.int64), blocks)
-            per_set = np.bincount(cand % 2, weights=nrev, minlength=2)
-            if shift == 0.0 or per_set.min() > best[0]:
-                best = (per_set.min(), cand)
-            if best[0] >= nrev.sum() / 3.0:
+            fewest = np.bincount(cand % 2, weights=nrev, minlength=2).min()
+            if best is None or fewest > best[0]:
+                best = (fewest, cand)
+            if fewest >= nrev.sum() / 3.0:
                 break
         block_of = best[1]
     sets = (block_of % 2).astype(np.int64)
