@@ -393,3 +393,19 @@ def test_exception_deadband():
     assert np.flatnonzero(keep).tolist() == [0, 9, 10]   # the value before the step too
     keep = exception_deadband(np.zeros(100), 0.5, max_interval=30)
     assert np.flatnonzero(keep).tolist() == [0, 30, 60, 90]
+
+
+def test_a_sticky_levels_labelled_slips_are_the_ones_its_record_can_show():
+    from valvediag.synth.cases import _visible_slope_slips, draw_loop
+
+    # a valve resting 600 samples between jumps of 2 %: on a level of 200 s
+    # the slope steps by 0.01 PV unit/s, against slope errors of about 1e-5
+    mv = np.repeat(40.0 + 2.0 * np.arange(6), 600)
+    assert _visible_slope_slips(mv, 2.0, 1.0 / 200.0, 0.02, 1.0) == 5
+    # the same slips under noise a thousand times larger are not labelled
+    assert _visible_slope_slips(mv, 2.0, 1.0 / 200.0, 20.0, 1.0) == 0
+    # jumps 30 samples apart show only where the stretches are long enough
+    mv = np.repeat(40.0 + 2.0 * np.arange(6), 30)
+    assert _visible_slope_slips(mv, 2.0, 1.0 / 200.0, 1.0, 1.0) == 0
+    loop = draw_loop("level-stiction-events", np.random.default_rng([1, 3, 0]))
+    assert loop.params["slips"] >= 3 and loop.truth == "stiction"

@@ -529,11 +529,15 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         quiet = ("no-oscillation", 0.6 + 0.3 * min(1.0, max(0.0, 1.0 - osc.regularity)),
                  f"no regular oscillation (regularity {osc.regularity:.2f}, "
                  f"autocorrelation at one period {osc.acf_at_period:.2f})")
-    def valve_events():
-        """A sticky or loose valve shown by its slips or take-ups, or None."""
+    def valve_events(screened: str = "unknown"):
+        """A sticky or loose valve shown by its slips or take-ups, or None.
+
+        ``screened``: the process type the data test found, tried alone when
+        the registry has none (a square load's turns on a flow are no level's
+        slips)."""
         ev_sp = sp[a:b] if sp is not None else None
         kinds = (process_type,) if process_type != "unknown" else \
-            ("self-regulating", "integrating")
+            (screened,) if screened != "unknown" else ("self-regulating", "integrating")
         for kind in kinds:
             slips = stick_slip_events(x, u, h, process=kind, sp=ev_sp)
             if slips.found:
@@ -601,7 +605,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                                      process_screen=pscreen, shape=shape, **common)
         # a valve the signature cannot read in the cycle may still show its events
         return d if d.verdict in ("stiction", "backlash", "undecided") else \
-            (valve_events() or d)
+            (valve_events("self-regulating") or d)
     if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR:
         conf = c_data * proc_conf * (0.5 + 0.5 * (1.0 - shape.pv_distortion / DIST_LINEAR))
         return verdict("linear-oscillation", conf,

@@ -52,15 +52,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
-from scipy.signal import lfilter
+from scipy.signal import find_peaks, lfilter, oaconvolve
 
 from ..models.valves import apply_valve
 from .quality import white_noise_std
 
 __all__ = ["ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_events",
-           "horch_correlation", "cycle_transitions", "SIGNATURE_LIMITS"]
+           "horch_correlation", "cycle_transitions", "loop_sense", "SIGNATURE_LIMITS"]
 
 #: Decision limits of :func:`valve_signature` (calibrated on the development
 #: set of ``benchmarks/bench_realistic.py``, seed 1).
@@ -719,7 +720,8 @@ class StickSlipEvents:
     index : numpy.ndarray
         Sample index of each valve event.
     step : int
-        Samples over which a jump was measured.
+        Samples over which a jump was measured (on a level, the half-window
+        over which its kinks were read).
     """
 
     process: str
@@ -785,8 +787,20 @@ KIND_SHARE = 2.0 / 3.0
 #: A jump exceeds this many robust standard deviations of the record's moves
 #: over the same step (and six noise standard deviations).
 MOVE_SPREAD = 4.0
-#: Widest half-window over which a level's slope is read for its slips [samples].
-SLOPE_WINDOW_MAX = 256
+#: Half-windows over which a level's kinks are read [samples].
+KINK_WINDOWS = (8, 16, 32, 64, 128)
+#: A level's slope step counts as a kink beyond this many standard errors.
+KINK_Z = 6.0
+#: The level's slope may change by at most this share of a kink's step, the
+#: way the kink goes, over the half-window before it (the valve held).
+KINK_HELD = 0.5
+#: At half the window, somewhere within a quarter window of the kink, the
+#: slope must step the same way by at least this share of it (a step, not a
+#: bend that only a wide window folds into one).
+KINK_ABRUPT = 0.7
+#: Standard errors of the OP's mean by which it must travel over the
+#: half-window before a kink for the kink to say anything of the valve.
+KINK_TRAVEL_Z = 4.0
 #: Steps over which a self-regulating PV's jumps are measured [samples].
 SLIP_STEPS = (2, 8, 32, 128)
 
@@ -815,16 +829,17 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     Notes
     -----
     Stick detection in the manner of Kano et al. (2004) [1]_, for records
-    without a limit cycle. While a sticky valve holds, the load moves the PV
-    away from its set point and the controller's output creeps to correct
-    it, to no effect; then the valve slips and the PV (on a level: its
-    slope) jumps *towards the set point*. A jump counts as a slip when
+    without a limit cycle.
+
+    **Self-regulating process.** While a sticky valve holds, the load moves
+    the PV away from its set point and the controller's output creeps to
+    correct it, to no effect; then the valve slips and the PV jumps
+    *towards the set point*. A jump counts as a slip when
 
     * the set point did not move over the stretch before it and during it;
     * the OP moved by more than its noise band over that stretch;
     * the control error had grown over that stretch, and the jump reduces it
-      (a self-regulating PV jumps by no more than the error it closes; a
-      level's slope turns towards the set point).
+      by no more than three times the error it closes.
 
     A load step makes the PV jump *away* from its set point, and a set-point
     step moves the set point first, so neither counts. This needs no process
@@ -832,14 +847,8 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     back to the set point. The jump is measured over 2, 8, 32 or 128 samples
     (the shortest step at which the valve events make a fault, else the step
     that finds the most), which covers process lags up to about 100
-    samples. A fault needs :data:`MIN_SLIPS` valve events that make
-    :data:`MIN_SLIP_SHARE` of the jumps judged, or, in a snapshot of at most
-    :data:`SNAPSHOT_S`, :data:`MIN_SLIPS_ALONE` and no other jump. A
-    jump within ``2 L`` samples of the last one continues it (an overshoot,
-    a jump split by noise) and is neither counted nor against. A level's
-    slope is read over half-windows growing fourfold from the narrowest that
-    resolves it (at most 16 samples) to :data:`SLOPE_WINDOW_MAX`, its jumps
-    over one window.
+    samples. A jump within ``2 L`` samples of the last one continues it (an
+    overshoot, a jump split by noise) and is neither counted nor against.
 
     A loose valve holds too, inside its dead band, and then moves the PV back
     as fast as the OP drives it. What tells the two apart is the OP *during*
@@ -848,18 +857,49 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     proportional action answers the PV; a take-up is the valve following the
     OP, so the OP moves on in the direction it had crept, by more than
     :data:`TAKEUP_OP` noise bands. Two thirds of the valve events of one kind
-    name the fault; a mix is ``'undecided'``. On an integrating process the
-    test does not apply (a slip steps the level's slope, and the controller
-    answers only through the error that slowly grows from it, so the OP moves
-    on after a slip as well): there every valve event counts as a slip.
+    name the fault; a mix is ``'undecided'``.
+
+    **Integrating process (a level).** The level's slope is the valve's
+    position less the net load, so while a sticky valve holds the level runs
+    straight, and a slip steps its slope: the level *kinks*. Around every
+    sample, over a half-window of ``w`` samples either side (``w`` in
+    :data:`KINK_WINDOWS`), the level is fitted with a line, a parabola, a
+    change of curvature and a hinge; the hinge's coefficient is the slope
+    step, read where it stands :data:`KINK_Z` standard errors above the
+    noise (a bend of the trend, a wandering load or a valve that follows a
+    moving OP, is taken up by the smooth terms). A kink is judged when the
+    set point stood over the window and the OP's mean moved by
+    :data:`KINK_TRAVEL_Z` standard errors over the half-window before it (a
+    kink the OP did not drive is a load's and says nothing of the valve).
+    It is a slip when the slope stepped the way the OP crept (through the
+    loop's sense, :func:`loop_sense`), the level ran straight before it (its
+    slope changed by at most :data:`KINK_HELD` of the step, the way of the
+    step, over that half-window) and the step is abrupt (at half the window
+    it shows at :data:`KINK_ABRUPT` of its size within a quarter window).
+    A valve that follows the OP bends the level as the OP moves, and its
+    kinks, where a step of the OP makes one, are judged and not slips. The
+    controller answers a level's slip only through the error that slowly
+    grows from it, so no take-up can be read: every valve event is a slip.
+    Half-windows of at most 128 samples keep the fitted stretch within the
+    valve's rests; wider ones fold a closed loop's answer to a load's turn
+    into kinks.
+
+    A fault needs :data:`MIN_SLIPS` valve events that make
+    :data:`MIN_SLIP_SHARE` of the jumps (or kinks) judged, or, in a
+    snapshot of at most :data:`SNAPSHOT_S`, :data:`MIN_SLIPS_ALONE` and no
+    other.
 
     It fails where a valve's slips are smaller than six noise standard
-    deviations of the PV (or its slope), where a slow process spreads a
-    slip over more than 128 samples, where the OP moves too slowly for a
-    take-up to make a jump (a loose valve behind slow integral action shows
-    no event), and where the set point is missing and moves. A sticky valve
-    with a small slip jump after a large stick band is followed, within the
-    step, by the OP's own motion and may read as a mix.
+    deviations of the PV (or, on a level, of the slope step read over 128
+    samples), where a slow process spreads a slip over more than 128
+    samples, where the OP moves too slowly for a take-up to make a jump (a
+    loose valve behind slow integral action shows no event), and where the
+    set point is missing and moves. A sticky valve with a small slip jump
+    after a large stick band is followed, within the step, by the OP's own
+    motion and may read as a mix. On a level a step of the load that comes
+    after the OP has crept the same way (an upstream pump started as the
+    level rose) reads as a slip; a record compressed so that few points are
+    stored shows only the largest kinks.
     """
     if process not in ("integrating", "self-regulating"):
         raise ValueError(f"process must be 'integrating' or 'self-regulating', not {process!r}")
@@ -875,25 +915,25 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     err = sp - pv
     band = NOISE_REVERSAL * white_noise_std(op)
     pv_noise = white_noise_std(pv)
-    if process == "integrating":
-        # the slope read over ever wider windows: a slip steps the slope by
-        # little against the noise of a narrow one
-        w = min(_slope_window(pv, h, pv_noise), 16)
-        reads = []
-        while w <= SLOPE_WINDOW_MAX and 32 * w <= pv.size:
-            y = np.r_[np.full(w, np.nan), (pv[2 * w:] - pv[:-2 * w]) / (2 * w * h),
-                      np.full(w, np.nan)]
-            reads.append((y, pv_noise * math.sqrt(2.0) / (2 * w * h), 2 * w))
-            w *= 4
-    else:
-        reads = [(pv, pv_noise, L) for L in SLIP_STEPS]
-    if not pv_noise > 0 or not reads:
+    if not pv_noise > 0:
         return StickSlipEvents(found=False, reason="the PV has no measurable noise", **base)
+    if process == "integrating":
+        # a level's kinks, read over ever wider windows: a slip steps the
+        # slope by little against the noise of a narrow one
+        sense = loop_sense(pv, op)
+        reads = [(w, lambda w=w: _level_kinks(pv, op, sp, w, pv_noise, band / NOISE_REVERSAL,
+                                              sense, 3.0 * pv_noise))
+                 for w in KINK_WINDOWS if 8 * w <= pv.size]
+    else:
+        reads = [(L, lambda L=L: _slips(pv, op, err, sp, L, 6.0 * pv_noise * math.sqrt(2.0),
+                                        band, 3.0 * pv_noise))
+                 for L in SLIP_STEPS]
+    if not reads:
+        return StickSlipEvents(found=False, reason=f"only {pv.size} samples", **base)
     short = pv.size * h <= SNAPSHOT_S
     best = None
-    for y, noise, L in reads:
-        found = _slips(y, op, err, sp, L, 6.0 * noise * math.sqrt(2.0), band,
-                       3.0 * pv_noise, process == "integrating")
+    for L, read in reads:
+        found = read()
         if found is None or found[0].size == 0:
             continue
         n_ok = int(found[1].sum())
@@ -904,8 +944,8 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
         if best is None or (not best[3] and (fault or n_ok > best[2])):
             best = (L, found, n_ok, fault)
     if best is None:
-        return StickSlipEvents(found=False, reason="no jump of the PV beyond its noise",
-                               **base)
+        what = "kink of the level" if process == "integrating" else "jump of the PV"
+        return StickSlipEvents(found=False, reason=f"no {what} beyond its noise", **base)
     L, (idx, ok, travel, on), n_ok, is_fault = best
     # a level's controller answers a slope's jump only through the error it
     # grows, so the OP moves on after a slip too: there every event is a slip
@@ -919,7 +959,10 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     what = "slope of the PV" if process == "integrating" else "PV"
     counts = (f"{n_ok} of {idx.size} jumps of the {what} are valve events ({n_slip} slips, "
               f"{n_take} take-ups)")
-    if kind == "stiction":
+    if kind == "stiction" and process == "integrating":
+        reason = (f"{counts}: each time the level ran straight while the OP crept about "
+                  f"{op_travel:.2g} %, then its slope stepped the way the OP had moved")
+    elif kind == "stiction":
         reason = (f"{counts}: each time the error grew while the OP crept about "
                   f"{op_travel:.2g} %, then the {what} jumped back towards the set point "
                   "while the OP stood or moved back")
@@ -929,6 +972,10 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
                   "as the OP moved on: the valve takes up a dead band and follows, no jump")
     elif kind == "undecided":
         reason = f"{counts}: a valve that holds and then moves, sticky or loose cannot be told"
+    elif process == "integrating":
+        reason = (f"{n_ok} of {idx.size} kinks of the level are valve events (need "
+                  f"{MIN_SLIPS} and {100 * MIN_SLIP_SHARE:.0f}% of them, or "
+                  f"{MIN_SLIPS_ALONE} and all)")
     else:
         reason = (f"{n_ok} of {idx.size} jumps of the {what} are valve events (need "
                   f"{MIN_SLIPS} and {100 * MIN_SLIP_SHARE:.0f}% of them, or "
@@ -938,8 +985,8 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
                            op_travel=op_travel, index=idx[ok], step=L, **base)
 
 
-def _slips(y, op, err, sp, L, thr, band, err_min, integrating):
-    """Jumps of ``y`` over ``L`` samples beyond ``thr``, or None.
+def _slips(y, op, err, sp, L, thr, band, err_min):
+    """Jumps of a self-regulating PV ``y`` over ``L`` samples beyond ``thr``, or None.
 
     Returns (index, is a valve event, OP travel before it, OP travel during
     it in the direction of the travel before it) of the jumps with a stretch
@@ -984,9 +1031,8 @@ def _slips(y, op, err, sp, L, thr, band, err_min, integrating):
         y0, y1 = y0[np.isfinite(y0)], y1[np.isfinite(y1)]
         held = (y0.size > 0 and y1.size > 0
                 and (y1.mean() - y0.mean()) * np.sign(d[k]) <= abs(d[k]) / 4)
-        if not integrating:
-            # the PV closes part of the error, it does not overshoot far past it
-            towards = towards and abs(d[k]) <= 3.0 * abs(e_before) + err_min
+        # the PV closes part of the error, it does not overshoot far past it
+        towards = towards and abs(d[k]) <= 3.0 * abs(e_before) + err_min
         ok[i] = sp_still and abs(travel[i]) > band and grew and towards and held
         # a jump away from the set point is a load's: no valve makes one (a
         # slip moves the PV the way the controller drives it), so it says
@@ -997,3 +1043,118 @@ def _slips(y, op, err, sp, L, thr, band, err_min, integrating):
         # puts the OP that drives a take-up before the PV's move)
         on[i] = (op[min(n - 1, k + L)] - op[max(0, k - L)]) * np.sign(travel[i])
     return idx[judged], ok[judged], np.abs(travel[judged]), on[judged]
+
+
+def loop_sense(pv, op) -> float:
+    """The sense in which the OP moves the PV, read from the controller's answer to noise.
+
+    Parameters
+    ----------
+    pv, op : array_like, shape (n,)
+        One gap-free stretch of a loop in automatic [PV unit, OP unit].
+
+    Returns
+    -------
+    float
+        +1 when the PV rises with the OP, -1 when it falls, 0 when the
+        record cannot tell.
+
+    Notes
+    -----
+    A controller in automatic moves its OP against every move of the PV it
+    measures, measurement noise included, and within a sample the valve has
+    not yet answered. So the sample-to-sample moves of PV and OP correlate
+    negatively when the PV rises with the OP (a working loop's proportional
+    action opposes the process's sense). The sense is read only when that
+    correlation exceeds three standard errors. It fails where the PV is
+    filtered before the controller or stored so coarsely that the valve's
+    answer falls within the same sample, and for a controller without
+    proportional action.
+    """
+    dp = np.diff(np.asarray(pv, dtype=float))
+    du = np.diff(np.asarray(op, dtype=float))
+    ok = np.isfinite(dp) & np.isfinite(du)
+    dp, du = dp[ok] - dp[ok].mean(), du[ok] - du[ok].mean()
+    den = math.sqrt(float(dp @ dp) * float(du @ du))
+    if not den > 0:
+        return 0.0
+    r = -float(dp @ du) / den
+    return float(np.sign(r)) if abs(r) > 3.0 / math.sqrt(dp.size) else 0.0
+
+
+@lru_cache(maxsize=16)
+def _kink_kernels(w: int):
+    """Unit kernels over ``2 w`` samples (``t = -w .. w-1``) that read a kink at ``t = 0``.
+
+    Returns ``(kink, kink_norm, bend, bend_norm)``: ``kink`` is the hinge
+    ``max(t, 0)`` less its projection on a line, a parabola and a parabola
+    starting at the kink (a smooth bend and a change of curvature read as
+    no kink), normalised; the slope step is ``kink @ y / kink_norm`` [PV
+    unit per sample]. ``bend`` reads the curvature of the half-window before
+    the kink (a parabola less its line there, zero after); the slope change
+    over that half-window is ``2 w bend @ y / bend_norm``.
+    """
+    t = np.arange(-w, w, dtype=float)
+    smooth, _ = np.linalg.qr(np.c_[np.ones_like(t), t, t * t / w, np.maximum(t, 0.0) ** 2 / w])
+    hinge = np.maximum(t, 0.0)
+    hinge = hinge - smooth @ (smooth.T @ hinge)
+    kink_norm = float(np.linalg.norm(hinge))
+    tb = t[:w]
+    line, _ = np.linalg.qr(np.c_[np.ones_like(tb), tb])
+    par = tb * tb - line @ (line.T @ (tb * tb))
+    bend_norm = float(np.linalg.norm(par))
+    bend = np.r_[par / bend_norm, np.zeros(w)]
+    return hinge / kink_norm, kink_norm, bend, bend_norm
+
+
+def _window_corr(y: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``sum_t u[t] y[k - w + t]`` for every ``k`` whose window ``[k - w, k + w)``
+    fits; NaN elsewhere."""
+    w = u.size // 2
+    full = oaconvolve(y, u[::-1], mode="valid")
+    out = np.full(y.size, np.nan)
+    out[w:w + full.size] = full
+    return out
+
+
+def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
+    """Kinks of a level read over half-windows of ``w`` samples, or None.
+
+    Returns (index, is a valve event, OP travel before it, zeros) of the
+    kinks judged, in the form of :func:`_slips`."""
+    n = pv.size
+    y = pv - np.median(pv)
+    kink, kink_norm, bend, bend_norm = _kink_kernels(w)
+    pk = _window_corr(y, kink)
+    # compression: a stored point's error spreads over the samples drawn
+    # between stored points, and the noise read on the stored points is theirs
+    stored = np.r_[1.0, (np.abs(np.diff(pv, 2)) > 0.0).astype(float), 1.0]
+    density = _window_corr(stored, np.ones(2 * w))
+    spread = np.sqrt(np.clip(2 * w / np.maximum(density, 1.0), 1.0, None))
+    z = np.nan_to_num(pk / (noise * spread))
+    idx, _ = find_peaks(np.abs(z), height=KINK_Z, distance=w)
+    if idx.size == 0:
+        return None
+    pb = _window_corr(y, bend)
+    half = _window_corr(y, _kink_kernels(w // 2)[0]) / _kink_kernels(w // 2)[1]
+    q = max(2, w // 4)
+    travel_min = KINK_TRAVEL_Z * op_noise * math.sqrt(2.0 / q)
+    judged = np.zeros(idx.size, bool)
+    ok = np.zeros(idx.size, bool)
+    travel = np.zeros(idx.size)
+    for i, k in enumerate(idx):
+        if np.ptp(sp[max(0, k - 2 * w):min(n, k + w)]) > sp_tol:
+            continue          # a set-point move moves every valve: it says nothing
+        d = pk[k] / kink_norm                              # slope step [PV unit/sample]
+        travel[i] = float(np.mean(op[k - q:k]) - np.mean(op[k - w:k - w + q]))
+        # a kink the OP did not drive (it stood still) is a load's: it says nothing
+        judged[i] = abs(travel[i]) > travel_min
+        # the valve moved the way the OP crept, in one step, after it had held
+        way = sense != 0 and np.sign(d) == sense * np.sign(travel[i])
+        held = 2.0 * w * pb[k] / bend_norm * np.sign(d) <= KINK_HELD * abs(d)
+        near = half[max(0, k - w // 4):k + w // 4 + 1] * np.sign(d)
+        near = near[np.isfinite(near)]
+        abrupt = near.size > 0 and float(near.max()) >= KINK_ABRUPT * abs(d)
+        ok[i] = judged[i] and way and held and abrupt
+    return idx[judged], ok[judged], np.abs(travel[judged]), np.zeros(int(judged.sum()))
+

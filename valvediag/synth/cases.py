@@ -10,7 +10,10 @@ records show more, and the scan must be right on all of it
   among them sawtooth cycles with a slow rise and a fast fall (the valve
   closes fully on a net inflow);
 * sticky valves on level loops under proportional-only control: no limit
-  cycle, stick-slip events around set-point moves and load changes;
+  cycle, stick-slip events around set-point moves and load changes, at
+  least three of them bending the level's record by more than its noise
+  (:func:`_visible_slope_slips`: a valve that slips unseen is no labelled
+  case);
 * sticky flow, pressure and temperature valves (self-regulating, time
   constants 2-60 s): square-wave PV and triangular OP, periods 30 s to 20 min;
 * sticky flow valves without a limit cycle: the OP ramps for minutes while the
@@ -38,6 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..analysis.quality import white_noise_std
 from ..models.closedloop import simulate_loop
 from .plant import exception_deadband, swinging_door
 
@@ -190,6 +194,52 @@ def _slips_of(mv: np.ndarray, jump: float) -> int:
     return int(np.sum(np.abs(np.diff(mv)) >= 0.5 * jump)) if jump > 0 else 0
 
 
+def _visible_slope_slips(mv: np.ndarray, jump: float, gain: float, noise: float,
+                         h: float) -> int:
+    """Slips of a valve on an integrating process that its record can show.
+
+    Parameters
+    ----------
+    mv : numpy.ndarray
+        Valve position at the record's samples [OP unit].
+    jump : float
+        Slip jump ``J`` [OP unit]; a move of at least half of it in one
+        sample is a slip.
+    gain : float
+        The level's slope per unit valve position [PV unit/s per OP unit].
+    noise : float
+        White measurement noise of the PV [PV unit].
+    h : float
+        Record sample time [s].
+
+    Returns
+    -------
+    int
+
+    Notes
+    -----
+    A slip steps the level's slope by ``gain`` times the valve's move, and
+    between slips the level runs straight (the valve stands), so the best
+    any reader of the record can do is to fit a line to the stretch on
+    either side. A slip counts as visible when its slope step exceeds six
+    standard errors of the difference of those two slopes (a line through
+    ``m`` samples has a slope error of ``noise sqrt(12 / m^3) / h``): the
+    six noise standard deviations by which :func:`_events` counts a flow's
+    jumps.
+    """
+    if not jump > 0:
+        return 0
+    dm = np.diff(mv)
+    at = np.flatnonzero(np.abs(dm) >= 0.5 * jump)
+    if at.size == 0:
+        return 0
+    edges = np.r_[0, at, mv.size - 1].astype(float)
+    before, after = np.diff(edges)[:-1], np.diff(edges)[1:]
+    se = noise * math.sqrt(12.0) / h * np.sqrt(np.maximum(before, 2.0) ** -3.0
+                                                + np.maximum(after, 2.0) ** -3.0)
+    return int(np.sum(np.abs(dm[at]) * gain > 6.0 * se))
+
+
 def _events(pv: np.ndarray, noise: float) -> int:
     """Jumps of the PV between two samples larger than 6 noise sigma (slips)."""
     d = np.abs(np.diff(pv))
@@ -327,6 +377,13 @@ def _try(klass: str, rng: np.random.Generator):
     pv, op, sp = run.pv[k0:], run.op[k0:], run.sp[k0:]
     valve_slips = _slips_of(run.mv[k0:], vp.get("J", 0.0)) if valve == "kano" else 0
     pv, op, sp = _record(pv, op, sp, rng, compressed, sigma)
+    if klass == "level-stiction-events":
+        # of the valve's slips, those the level's record shows: at its samples,
+        # and through its compression (a stored point's error spreads over the
+        # samples drawn between stored points)
+        stored = np.flatnonzero(np.abs(np.diff(pv, 2)) > 0.0).size + 2
+        noise = max(sigma, white_noise_std(pv) * math.sqrt(pv.size / stored))
+        valve_slips = _visible_slope_slips(run.mv[k0::2], vp["J"], 1.0 / tau, noise, h)
     p.update(tau_s=tau, kc=sim["kc"], ti_s=sim["ti"], dead_time_s=sim.get("dead_time", 0.0),
              lag_s=sim.get("lag", 0.0), valve=valve, **vp, noise_sigma=sigma)
     # does the record show its class?
@@ -357,7 +414,7 @@ def _try(klass: str, rng: np.random.Generator):
         if np.isfinite(period) and cycles >= 4 and regularity > 1.0:
             return None
         if valve_slips < 3:
-            return None                      # the valve never showed that it sticks
+            return None                      # no three slips the record can show
         p.update(slips=valve_slips)
     elif klass.endswith("healthy"):
         if np.isfinite(period) and cycles >= 4 and regularity > 1.0:
