@@ -546,6 +546,17 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                 what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
                         }.get(slips.kind, "valve events")
                 conf = 0.5 + 0.4 * min(1.0, slips.consistent / 10.0)
+                if len(kinds) > 1 and kind == "integrating":
+                    # read as a flow the record showed nothing; read as a level
+                    # its kinks are slips, but a loose flow valve's take-ups
+                    # kink a flow's record the same way: the type decides
+                    return verdict(
+                        "undecided", 0.6 * conf,
+                        f"valve events: read as a level, {slips.reason}; read as a flow "
+                        "(self-regulating), no slip or take-up: a valve that holds and then "
+                        "moves, sticky (on a level) or loose (on a flow); give the process "
+                        "type in loops.csv to decide; method: valve events (slips and "
+                        "take-ups)", **common)
                 return verdict(slips.kind, conf if slips.kind != "undecided" else 0.6 * conf,
                                f"{what}: {slips.reason} ({kind} process, {src}); method: "
                                "valve events (slips and take-ups)", **common)
