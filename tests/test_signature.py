@@ -293,7 +293,7 @@ def test_load_steps_between_slips_do_not_hide_them():
     assert e.events == e.consistent, e.reason
 
 
-def _level_staircase(seed=3, stick=True, sense=1.0, n=6000):
+def _level_staircase(seed=3, stick=True, sense=1.0, n=6000, wander=False):
     """A level under proportional control whose inflow valve sticks: the
     outflow wanders (40 +- 2 % over 25 minutes), the OP (40 + 2 x the error,
     plus the measurement's noise) creeps as the level drifts, and the valve
@@ -301,13 +301,17 @@ def _level_staircase(seed=3, stick=True, sense=1.0, n=6000):
     ``J = S``). Between slips the level runs straight; each slip steps its
     slope: the valve position the slope implies is a staircase under a
     smooth OP. With ``stick=False`` the valve follows the OP (the same loop,
-    healthy)."""
+    healthy). With ``wander=True`` the outflow wanders at random instead
+    (a straight line between random points every 10 minutes), so the level
+    does not cycle."""
     rng = np.random.default_rng(seed)
     h, tau, kc, sp = 1.0, 200.0, 2.0, 50.0
     pv, valve = sp, 40.0
     out_pv, out_op = np.empty(n), np.empty(n)
+    knots = 40.0 + np.cumsum(rng.normal(0, 1.0, n // 600 + 2))
+    walk = np.interp(np.arange(n), np.arange(knots.size) * 600.0, knots)
     for k in range(n):
-        load = 40.0 + 2.0 * np.sin(2 * np.pi * k * h / 1500.0)
+        load = walk[k] if wander else 40.0 + 2.0 * np.sin(2 * np.pi * k * h / 1500.0)
         meas = pv + rng.normal(0, 0.02)
         op = 40.0 + sense * kc * (sp - meas)
         if not stick or abs(op - valve) > 1.0:
@@ -327,6 +331,15 @@ def test_a_levels_staircase_of_slips_is_read_from_its_kinks():
     pv, op, sp = _level_staircase(stick=False)
     e = stick_slip_events(pv, op, 1.0, process="integrating", sp=sp)
     assert not e.found and e.consistent == 0, e.reason
+    # through the classifier, on an outflow that wanders without a cycle:
+    # stick-slip events; not read from a PV the historian compressed and the
+    # scan drew back onto its grid
+    pv, op, sp = _level_staircase(wander=True)
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="integrating")
+    assert d.verdict == "stiction" and "level ran straight" in d.reason, d.reason
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="integrating",
+                      pv_compressed=True)
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
     # a reverse-acting loop (the PV falls as the OP rises) slips the same way
     pv, op, sp = _level_staircase(sense=-1.0)
     e = stick_slip_events(pv, op, 1.0, process="integrating", sp=sp)

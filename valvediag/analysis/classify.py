@@ -414,7 +414,8 @@ def _margin(x, limit, scale):
 
 
 def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "unknown",
-                  method: str = "robust", min_cycles: float = 3.0) -> LoopDiagnosis:
+                  method: str = "robust", min_cycles: float = 3.0,
+                  pv_compressed: bool = False) -> LoopDiagnosis:
     """Classify one control loop from its recorded PV and OP.
 
     Parameters
@@ -434,6 +435,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         Backlash Index estimator.
     min_cycles : float
         Fewest complete cycles for a verdict on the valve.
+    pv_compressed : bool
+        The historian stored the PV only where it left a band, and the record
+        was drawn back onto the sample grid between stored points
+        (:class:`~valvediag.analysis.quality.DataQuality`'s ``compressed``):
+        a level's kinks are not read from it (the straight lines drawn
+        between stored points kink every bend).
 
     Returns
     -------
@@ -538,6 +545,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         ev_sp = sp[a:b] if sp is not None else None
         kinds = (process_type,) if process_type != "unknown" else \
             (screened,) if screened != "unknown" else ("self-regulating", "integrating")
+        if pv_compressed:
+            kinds = tuple(k for k in kinds if k != "integrating")
         for kind in kinds:
             slips = stick_slip_events(x, u, h, process=kind, sp=ev_sp)
             if slips.found:

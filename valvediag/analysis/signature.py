@@ -903,7 +903,10 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     motion and may read as a mix. On a level a step of the load that comes
     after the OP has crept the same way (an upstream pump started as the
     level rose) reads as a slip; a record compressed so that few points are
-    stored shows only the largest kinks.
+    stored shows only the largest kinks, and one drawn back onto a finer grid
+    from irregularly stored points kinks at every bend with too little noise
+    read on the grid (the scan does not read a level's kinks there:
+    :func:`~valvediag.analysis.classify.classify_loop`'s ``pv_compressed``).
     """
     if process not in ("integrating", "self-regulating"):
         raise ValueError(f"process must be 'integrating' or 'self-regulating', not {process!r}")

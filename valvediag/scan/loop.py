@@ -210,11 +210,11 @@ def _active_blocks(Y: np.ndarray, lag: int, amplitude: float) -> np.ndarray:
     return big & (acf > ACTIVE_ACF)
 
 
-def _classify(aligned, a, b, process_type, config) -> LoopDiagnosis:
+def _classify(aligned, a, b, process_type, config, compressed=False) -> LoopDiagnosis:
     sp = aligned.sp[a:b] if aligned.sp is not None else None
     return classify_loop(aligned.pv[a:b], aligned.op[a:b], sp, sample_time=aligned.sample_time,
                          process_type=process_type, method=config.method,
-                         min_cycles=config.min_cycles)
+                         min_cycles=config.min_cycles, pv_compressed=compressed)
 
 
 def _is_episode(d: LoopDiagnosis, min_cycles: float) -> bool:
@@ -227,10 +227,10 @@ def _is_episode(d: LoopDiagnosis, min_cycles: float) -> bool:
             and d.cycles >= min_cycles)
 
 
-def _segment_episodes(aligned, a, b, process_type, config
+def _segment_episodes(aligned, a, b, process_type, config, compressed=False
                       ) -> tuple[LoopDiagnosis, list[tuple[int, int, LoopDiagnosis]]]:
     """Classify one segment; return its diagnosis and its episodes (start, stop, diagnosis)."""
-    d = _classify(aligned, a, b, process_type, config)
+    d = _classify(aligned, a, b, process_type, config, compressed)
     if not _is_episode(d, config.min_cycles):
         return d, []
     h = aligned.sample_time
@@ -242,7 +242,7 @@ def _segment_episodes(aligned, a, b, process_type, config
     for ra, rb in runs:
         if (rb - ra) * h < config.min_cycles * d.period:
             continue
-        sub = _classify(aligned, a + ra, a + rb, process_type, config)
+        sub = _classify(aligned, a + ra, a + rb, process_type, config, compressed)
         if _is_episode(sub, config.min_cycles):
             out.append((a + ra, a + rb, sub))
     return d, (out or [(a, b, d)])
@@ -664,7 +664,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     seg_diag: list[tuple[int, int, LoopDiagnosis]] = []
     episodes: list[tuple[int, int, LoopDiagnosis]] = []
     for a, b in segs:
-        d, eps = _segment_episodes(aligned, a, b, spec.process_type, config)
+        d, eps = _segment_episodes(aligned, a, b, spec.process_type, config, q.compressed)
         seg_diag.append((a, b, d))
         episodes.extend(eps)
 
