@@ -1143,7 +1143,8 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
     if idx.size == 0:
         return None
     pb = _window_corr(y, bend)
-    half = _window_corr(y, _kink_kernels(w // 2)[0]) / _kink_kernels(w // 2)[1]
+    half_kink, half_norm = _kink_kernels(w // 2)[:2]
+    half = _window_corr(y, half_kink) / half_norm             # slope steps at half the window
     q = max(2, w // 4)
     travel_min = KINK_TRAVEL_Z * op_noise * math.sqrt(2.0 / q)
     judged = np.zeros(idx.size, bool)
