@@ -40,8 +40,8 @@ import polars as pl
 
 from .align import AlignedLoop, contiguous_segments, to_epoch_us
 
-__all__ = ["DataQuality", "quality_metrics", "white_noise_std", "despike", "bridge_short_gaps",
-           "bridge_short_breaks",
+__all__ = ["DataQuality", "quality_metrics", "white_noise_std", "stored_points", "despike",
+           "bridge_short_gaps", "bridge_short_breaks",
            "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
 
 #: Mode texts meaning "the controller is not closing the loop".
@@ -430,6 +430,27 @@ def white_noise_std(x) -> float:
     w1 = 1.0 - w2
     r = (v[1:-1] - (w1 * v[:-2] + w2 * v[2:])) / np.sqrt(1.0 + w1 ** 2 + w2 ** 2)
     return float(1.4826 * np.median(np.abs(r - np.median(r))))
+
+
+def stored_points(x) -> np.ndarray:
+    """Indices of the samples a historian stored, for a record read back by
+    linear interpolation: the ends and every sample off the straight line
+    between its neighbours (a kink of the piecewise-linear record).
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+
+    Returns
+    -------
+    numpy.ndarray of int
+    """
+    x = np.asarray(x, dtype=float)
+    if x.size < 3:
+        return np.arange(x.size)
+    tiny = 1e-9 * max(float(np.nanmax(np.abs(x))), 1.0)
+    kinks = np.flatnonzero(np.abs(np.diff(x, 2)) > tiny) + 1
+    return np.unique(np.r_[0, kinks, x.size - 1])
 
 
 #: A sample this many robust noise deviations from its 7-sample median, and

@@ -58,7 +58,7 @@ import numpy as np
 from scipy.signal import find_peaks, lfilter, oaconvolve
 
 from ..models.valves import apply_valve
-from .quality import white_noise_std
+from .quality import stored_points, white_noise_std
 
 __all__ = ["ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_events",
            "horch_correlation", "cycle_transitions", "loop_sense", "SIGNATURE_LIMITS"]
@@ -1135,7 +1135,8 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
     pk = _window_corr(y, kink)
     # compression: a stored point's error spreads over the samples drawn
     # between stored points, and the noise read on the stored points is theirs
-    stored = np.r_[1.0, (np.abs(np.diff(pv, 2)) > 0.0).astype(float), 1.0]
+    stored = np.zeros(n)
+    stored[stored_points(pv)] = 1.0
     density = _window_corr(stored, np.ones(2 * w))
     spread = np.sqrt(np.clip(2 * w / np.maximum(density, 1.0), 1.0, None))
     z = np.nan_to_num(pk / (noise * spread))

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..analysis.quality import white_noise_std
+from ..analysis.quality import stored_points, white_noise_std
 from ..models.closedloop import simulate_loop
 from .plant import exception_deadband, swinging_door
 
@@ -187,11 +187,6 @@ def _cycles(pv: np.ndarray, h: float):
 
     osc = detect_oscillation(pv, h)
     return osc.period, osc.cycles, osc.regularity
-
-
-def _slips_of(mv: np.ndarray, jump: float) -> int:
-    """Slips of a simulated valve: moves of at least half the slip jump in one step."""
-    return int(np.sum(np.abs(np.diff(mv)) >= 0.5 * jump)) if jump > 0 else 0
 
 
 def _visible_slope_slips(mv: np.ndarray, jump: float, gain: float, noise: float,
@@ -375,13 +370,12 @@ def _try(klass: str, rng: np.random.Generator):
     run = simulate_loop(**sim, load_profile=profile_load, sp_profile=profile_sp,
                         noise_std=sigma, valve_noise_band=band, seed=int(rng.integers(1 << 31)))
     pv, op, sp = run.pv[k0:], run.op[k0:], run.sp[k0:]
-    valve_slips = _slips_of(run.mv[k0:], vp.get("J", 0.0)) if valve == "kano" else 0
     pv, op, sp = _record(pv, op, sp, rng, compressed, sigma)
     if klass == "level-stiction-events":
         # of the valve's slips, those the level's record shows: at its samples,
         # and through its compression (a stored point's error spreads over the
         # samples drawn between stored points)
-        stored = np.flatnonzero(np.abs(np.diff(pv, 2)) > 0.0).size + 2
+        stored = stored_points(pv).size
         noise = max(sigma, white_noise_std(pv) * math.sqrt(pv.size / stored))
         valve_slips = _visible_slope_slips(run.mv[k0::2], vp["J"], 1.0 / tau, noise, h)
     p.update(tau_s=tau, kc=sim["kc"], ti_s=sim["ti"], dead_time_s=sim.get("dead_time", 0.0),

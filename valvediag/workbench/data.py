@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import periodogram
 
-from ..analysis.quality import despike, white_noise_std
+from ..analysis.quality import despike, stored_points, white_noise_std
 from .kernels import nudge_holds, turning_points
 from .sensor import PVGrid, pv_grid
 
@@ -271,27 +271,6 @@ def shade_heldout(ax, data: LoopData):
     edges = np.flatnonzero(np.diff(np.r_[0, held.astype(np.int8), 0]))
     for a, b in zip(edges[::2], edges[1::2]):
         ax.axvspan(data.t[a], data.t[b - 1], color="0.9", lw=0, zorder=0)
-
-
-def stored_points(x) -> np.ndarray:
-    """Indices of the samples a historian stored, for a record read back by
-    linear interpolation: the ends and every sample off the straight line
-    between its neighbours (a kink of the piecewise-linear record).
-
-    Parameters
-    ----------
-    x : array_like, shape (n,)
-
-    Returns
-    -------
-    numpy.ndarray of int
-    """
-    x = np.asarray(x, dtype=float)
-    if x.size < 3:
-        return np.arange(x.size)
-    tiny = 1e-9 * max(float(np.nanmax(np.abs(x))), 1.0)
-    kinks = np.flatnonzero(np.abs(np.diff(x, 2)) > tiny) + 1
-    return np.unique(np.r_[0, kinks, x.size - 1])
 
 
 def rebuild_compressed_op(pv, op, sample_time: float, sp=None) -> tuple[np.ndarray, float]:
