@@ -510,6 +510,62 @@ def barely_moving_bands(data: LoopData) -> np.ndarray:
 SAT_REACH = 45.0
 
 
+#: OP percentiles (from either end) of the saturation stops searched [%]: a
+#: stop acts on the valve's position, which lies inside the OP's range by
+#: half a dead band or stick band, so the grid reaches well inside it (and
+#: under windup the OP spends long beyond the stop it pushes against).
+SAT_GRID = (0.5, 1, 2, 3, 5, 7.5, 10, 15, 20, 25, 30, 35, 40, SAT_REACH)
+#: ... and the fewer crossed with a self-regulating plant's time constant.
+SAT_JOINT = (2, 10, 25, SAT_REACH)
+
+
+def _stops(data: LoopData, q) -> list[dict]:
+    """Pairs of saturation stops at the OP's percentiles ``q`` from either
+    end, each side also absent (infinite), as field dicts."""
+    q = np.asarray(q, dtype=float)
+    lows = np.r_[-np.inf, np.percentile(data.op, q)]
+    highs = np.r_[np.percentile(data.op, 100 - q[::-1]), np.inf]
+    return [dict(sat_low=float(a), sat_high=float(b)) for a in lows for b in highs]
+
+
+def _stop_lines(prob: Problem, theta: Theta, f_best: float, rounds: int = 2):
+    """Each finite saturation stop on a fine line about its value, the other
+    held, twice over.
+
+    The training error is a staircase in a stop (it changes where a sample
+    of the valve's path crosses the stop), and the path dwells at a stop it
+    reaches: a stop a tenth of a band off mispredicts every dwell, and the
+    simplex, whose steps are a fortieth of the largest band, stops on a
+    step of that staircase. The line spans a valve band (or a tenth of the
+    OP's range) either side in 40 steps. A stop whose removal leaves the
+    training error as it is is removed.
+    """
+    d = prob.data
+    span = max(theta.DB if prob.vcode == BACKLASH else theta.S if prob.vcode in (KANO, HE)
+               else 0.0, 0.1 * float(np.ptp(d.op)))
+    lo_reach, hi_reach = sat_reach(d)
+    grid = np.linspace(-1.0, 1.0, 41) * span
+    for _ in range(rounds):
+        for nm in ("sat_low", "sat_high"):
+            v = getattr(theta, nm)
+            if not math.isfinite(v):
+                continue
+            vals = v + grid
+            vals = vals[vals <= lo_reach] if nm == "sat_low" else vals[vals >= hi_reach]
+            if vals.size:
+                theta, f_best, _, _ = _best(prob, [theta.replace(**{nm: float(x)})
+                                                   for x in vals], current=theta)
+    # a stop that no training sample reaches is not seen: absent, not placed
+    # wherever the search left it (where it may cut the held-out moves)
+    for nm, off in (("sat_low", -math.inf), ("sat_high", math.inf)):
+        if math.isfinite(getattr(theta, nm)):
+            cand = theta.replace(**{nm: off})
+            f = float(prob.score([cand])[0, 0])
+            if f <= f_best * (1.0 + 1e-9):
+                theta, f_best = cand, f
+    return theta, f_best
+
+
 def sat_reach(data: LoopData) -> tuple[float, float]:
     """Highest low stop and lowest high stop searched [OP unit]."""
     lo, hi = np.percentile(data.op, [SAT_REACH, 100.0 - SAT_REACH])
@@ -559,6 +615,29 @@ def load_periods(data: LoopData, k: int = 2) -> np.ndarray:
     return res
 
 
+def _period_axis(data: LoopData, coarse: bool) -> list[dict]:
+    """Candidate periods of the oscillating load, as field dicts.
+
+    About each periodogram peak (:func:`load_periods`), 2 % or a quarter of
+    the periodogram's resolution (one cycle per record) either side, where
+    that is wider. The coarse grid is spaced by 0.05 / m of the period for a
+    record of m cycles, at most 41 points a peak: a period off by ``e``
+    puts the load out of phase by ``m e`` cycles at the record's ends, and
+    a load a twentieth of a cycle out of phase is one a wrong time constant
+    or band can make up for better than the right ones can.
+    """
+    span = data.n * data.sample_time
+    out = []
+    for q in load_periods(data):
+        half = max(0.02, 0.25 * q / span)
+        if coarse:
+            k = int(min(41, max(3, 2 * math.ceil(half / (0.05 * q / span)) + 1)))
+        else:
+            k = 9
+        out += [dict(load_period=float(q * (1.0 + r))) for r in np.linspace(-half, half, k)]
+    return out
+
+
 def _grid(prob: Problem, coarse: bool):
     """The grid of one searched stage at a time, as lists of field dicts."""
     d = prob.data
@@ -571,21 +650,9 @@ def _grid(prob: Problem, coarse: bool):
     if prob.vcode != LINEAR:
         axes.append(_valve_values(prob, coarse))
     if "saturation" in prob.effects:
-        op = d.op
-        # a stop acts on the valve's position, which lies inside the OP's range by
-        # half a dead band or stick band: the grid reaches well inside it
-        # (and under windup the OP spends long beyond the stop it pushes against)
-        q = np.array([0.5, 1, 2, 3, 5, 7.5, 10, 15, 20, 25, 30, 35, 40, SAT_REACH])
-        lows = np.r_[-np.inf, np.percentile(op, q)]
-        highs = np.r_[np.percentile(op, 100 - q[::-1]), np.inf]
-        axes.append([dict(sat_low=float(a), sat_high=float(b)) for a in lows for b in highs])
+        axes.append(_stops(d, SAT_GRID))
     if prob.oscillating:
-        # about each peak: 2 %, or a quarter of the periodogram's resolution
-        # (one cycle per record) where that is wider (a long period)
-        span = d.n * h
-        axes.append([dict(load_period=float(q * (1.0 + r))) for q in load_periods(d)
-                     for r in np.linspace(-1.0, 1.0, 3 if coarse else 9)
-                     * max(0.02, 0.25 * q / span)])
+        axes.append(_period_axis(d, coarse))
     if prob.characteristic:
         cs = np.linspace(-CURVATURE_MAX, CURVATURE_MAX, 9 if coarse else 25)
         axes.append([dict(curvature=float(c / prob.op_span)) for c in cs])
@@ -731,10 +798,15 @@ def initial_theta(prob: Problem) -> Theta:
                  load_period=float(load_periods(d)[0]) if prob.oscillating else math.inf)
 
 
+#: Ratio of time constants between the grid's best starts and one more.
+TAU_APART = 3.0
+
+
 def _distinct_starts(cands, scores, k):
     """The ``k`` best candidates, at most one per value of the non-valve
     parameters and of the slip-jump ratio (so that the starts lie in
-    different valleys)."""
+    different valleys), and the best whose time constant lies a factor
+    :data:`TAU_APART` from all of theirs."""
     order = np.argsort(scores)
     seen, out = set(), []
     for i in order:
@@ -748,7 +820,34 @@ def _distinct_starts(cands, scores, k):
         out.append(c)
         if len(out) == k:
             break
+    # and the best with a time constant a factor TAU_APART from theirs: a
+    # slow plant forgives a band a little off, a fast one does not, so on a
+    # coarse grid the slow ones can take every start while the fast valley
+    # holds the optimum
+    for i in order:
+        c = cands[i]
+        if all(max(c.tau / o.tau, o.tau / c.tau) >= TAU_APART for o in out):
+            out.append(c)
+            break
     return out
+
+
+def _fine_period(prob: Problem, theta: Theta) -> tuple[Theta, float]:
+    """The load's period on ever finer grids about ``theta``'s (0.5, 0.1
+    and 0.02 %; each period needs its own load basis, too dear for every
+    step of the simplex).
+
+    Over a record of ``m`` cycles a period off by ``e`` puts the load out of
+    phase by ``m e`` cycles at the ends: a load of many cycles needs its
+    period to a small fraction of a per cent, finer than any grid of the
+    stages, before the other parameters can be searched at it.
+    """
+    f = float(prob.score([theta])[0, 0])
+    for rel in (0.005, 0.001, 0.0002):
+        q = theta.load_period * (1.0 + np.linspace(-rel, rel, 11))
+        theta, f, _, _ = _best(prob, [theta.replace(load_period=float(v)) for v in q],
+                               current=theta)
+    return theta, f
 
 
 def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
@@ -779,14 +878,24 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
     wider band, and a time constant searched at the starting band alone can
     settle where a wrong one, with the operating point (which every model
     fits) making up for it, fits best. Crossing the time constant costs
-    about 1.6 times the search time on a self-regulating loop. With a warm
+    about 1.6 times the search time on a self-regulating loop. The time
+    constant is crossed with a few saturation stops too (a valve held at
+    its stops a part of the time passed for a plant a hundred times
+    slower), and with the load's periods (a load a few tenths of a per cent
+    off its period, out of phase at the record's ends, passed for a plant
+    fifteen times slower); the valve band is crossed with the load's
+    periods (on an integrating plant, a band too narrow by half made up for
+    a load out of phase). With a warm
     start the stages run from it and from the cold start: from a smaller
     model's optimum alone they can stay in its valley (a dead band's fit
     with a dead time standing in for the slip jump gave a stiction fit
     with a dead time of 6.5 s for a true 3 s). The local
     step is Nelder-Mead on all continuous parameters jointly, finite
     saturation stops included (at most :data:`SAT_REACH` % into the OP's
-    range); the stops are searched on their grid again after it.
+    range); the stops are searched on their grid again after it and on a
+    fine line each (:func:`_stop_lines`), and a stop no training sample
+    reaches is removed. The load's period is searched on finer grids after
+    its stage and after the simplex (:func:`_fine_period`).
     """
     # the grid's stages run from the cold start and from the warm one: from a
     # smaller model's optimum alone they can stay in its valley (a dead time
@@ -795,16 +904,37 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
     axes = _grid(prob, coarse=True)
     pool_c, pool_s = [], []
     best_grid = (np.inf, origins[-1])
-    valve_axis = _valve_values(prob, True, joint=True) if prob.vcode != LINEAR else None
+    valve_axis = _valve_values(prob, True, joint=True) if prob.vcode != LINEAR else [{}]
+    stops_axis = _stops(prob.data, SAT_JOINT) if "saturation" in prob.effects else [{}]
+    # (the load's period, too: a period a few tenths of a per cent off and a
+    # time constant tens of times too slow make up for each other)
+    period_axis = _period_axis(prob.data, True) if prob.oscillating else [{}]
     for theta in origins if axes else ():
         for ax in axes:
-            if valve_axis is not None and any(k in ax[0] for k in ("delay", "lag", "tau")):
+            if "tau" in ax[0]:
+                # a self-regulating plant's time constant trades off with the
+                # valve's band and its stops: searched at the start's band and
+                # without stops, a valve held at its stops part of the time
+                # passes for a plant tens of times slower
+                cands = [theta.replace(**a, **v, **s) for a in ax for v in valve_axis
+                         for s in stops_axis]
+                if prob.oscillating:
+                    cands += [theta.replace(**a, **q) for a in ax for q in period_axis]
+            elif prob.vcode != LINEAR and any(k in ax[0] for k in ("delay", "lag")):
                 cands = [theta.replace(**a, **v) for a in ax for v in valve_axis]
             else:
                 cands = [theta.replace(**a) for a in ax]
+                if prob.oscillating and any(k in ax[0] for k in ("DB", "S")):
+                    # (and the valve's band: a band too narrow by half makes up
+                    # for a load out of phase, on an integrating plant too)
+                    cands += [theta.replace(**v, **q) for v in valve_axis for q in period_axis]
             theta, _, c, sc = _best(prob, cands, current=theta)
             pool_c += c
             pool_s += list(sc)
+            if "load_period" in ax[0]:
+                theta, f = _fine_period(prob, theta)
+                pool_c.append(theta)
+                pool_s.append(f)
         # one coordinate sweep on the fine grids
         for ax in _grid(prob, coarse=False):
             theta, f, c, sc = _best(prob, [theta.replace(**a) for a in ax], current=theta)
@@ -826,17 +956,11 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
         if f < fb:
             best, fb = th, f
     if "saturation" in prob.effects:
-        ax = _grid(prob, coarse=False)
-        for a in ax:
-            if "sat_low" in a[0]:
-                best, fb, _, _ = _best(prob, [best.replace(**x) for x in a], current=best)
+        best, fb, _, _ = _best(prob, [best.replace(**x) for x in _stops(prob.data, SAT_GRID)],
+                               current=best)
+        best, fb = _stop_lines(prob, best, fb)
     if prob.oscillating:
-        # the load's period on ever finer grids about the best (each period
-        # needs its own load basis, too dear for every step of the simplex)
-        for rel in (0.005, 0.001, 0.0002):
-            q = best.load_period * (1.0 + np.linspace(-rel, rel, 11))
-            best, fb, _, _ = _best(prob, [best.replace(load_period=float(v)) for v in q],
-                                   current=best)
+        best, fb = _fine_period(prob, best)
     if prob.vcode == KANO:
         best = _cliff_guard(prob, best, fb)
     return best

@@ -1,0 +1,98 @@
+"""The workbench's search finds the right valley where parameters trade off.
+
+Hand-built loops whose truth the fit must recover from a cold start (as
+``LoopModel.fit`` starts): a self-regulating plant whose dead band a coarse
+grid misses by a tenth (a slow plant forgives that, a fast one does not),
+saturation stops on a self-regulating plant (a valve held at its stops
+passes for a slower plant with a wider band), a stop that no sample
+reaches (it is left out rather than placed where it cuts the held-out
+moves), and an oscillating load of many cycles (a period a few tenths of a
+per cent off passes for a slower plant or a narrower band).
+
+Loops: PI control, a dead-band valve of 3 % OP, 1 s samples, set-point
+steps every 25-50 min, PV noise 1 % of the PV's swing (the noise floor of
+the held-out RMSE, ``sigma``).
+"""
+import numpy as np
+import pytest
+
+from valvediag import simulate_loop
+from valvediag.synth.cases import alternating_steps
+from valvediag.workbench import LoopModel, prepare_loop
+
+PLANTS = {
+    "integrating": dict(process="integrating", process_gain=1.0, tau=60.0, kc=2.0, ti=60.0),
+    "self-regulating": dict(process="self-regulating", process_gain=1.5, tau=30.0, kc=1.3,
+                            ti=20.0),
+}
+
+
+def _loop(plant, seed, hours, steps=(0.5, 1.5), reach=None, **sim):
+    """(data, sigma, valve limits) of one loop. ``reach``: the valve's travel
+    limited to that share of its free excursions from their median."""
+    rng = np.random.default_rng(seed)
+    n = int(hours * 3600)
+    kw = dict(PLANTS[plant], sample_time=1.0, n_samples=n,
+              sp_profile=alternating_steps(rng, n, size=steps), noise_std=0.002, seed=seed,
+              valve="backlash", valve_params={"DB": 3.0}, **sim)
+    limits = (-np.inf, np.inf)
+    if reach is not None:
+        free = simulate_loop(**kw).mv[n // 10:]
+        mid = np.median(free)
+        limits = (mid - reach * (mid - free.min()), mid + reach * (free.max() - mid))
+        kw.update(valve_limits=limits)
+    run = simulate_loop(**kw)
+    sigma = 0.01 * np.ptp(run.pv[n // 10:])
+    pv = run.pv + sigma * rng.standard_normal(n)
+    return prepare_loop(pv, run.op, 1.0, sp=kw["sp_profile"]), sigma, limits
+
+
+def test_a_dead_band_on_a_fast_self_regulating_plant_is_found():
+    """The coarse grid's best points all lay at plants 20-150 times too slow
+    (the band a tenth off, which they forgive): the fit settled at 420 s."""
+    data, sigma, _ = _loop("self-regulating", 3, 3.0)
+    fit = LoopModel(("deadband",), "self-regulating").fit(data)
+    assert fit.params["tau"] == pytest.approx(30.0, rel=0.05)
+    assert fit.params["DB"] == pytest.approx(3.0, abs=0.1)
+    assert fit.train_rmse < 1.05 * sigma
+    assert fit.heldout_rmse < 1.1 * sigma
+
+
+def test_a_stop_that_no_sample_reaches_is_left_out():
+    """A valve without stops: the saturation fit adds none (it had placed
+    two where no training sample reached, and doubled the held-out error)."""
+    data, _, _ = _loop("integrating", 3, 3.0)
+    base = LoopModel(("deadband",), "integrating").fit(data)
+    fit = base.model.add("saturation").fit(data, start=base)
+    assert fit.params["sat_low"] == -np.inf and fit.params["sat_high"] == np.inf
+    assert fit.heldout_rmse == pytest.approx(base.heldout_rmse, rel=0.01)
+
+
+@pytest.mark.parametrize("seed, reach", [(1025, 0.55), (1035, 0.5)])
+def test_saturation_stops_on_a_self_regulating_plant_are_found(seed, reach):
+    """Stops that cut the valve's excursions after set-point steps of 8-12
+    to about half: both found within 0.1 % OP with the plant and the band
+    (the fit had read a band of 11-12 % on a plant half as fast)."""
+    data, sigma, (lo, hi) = _loop("self-regulating", seed, 4.5, steps=(8.0, 12.0), reach=reach)
+    base = LoopModel(("deadband",), "self-regulating").fit(data)
+    fit = base.model.add("saturation").fit(data, start=base)
+    assert fit.params["sat_low"] == pytest.approx(lo, abs=0.1)
+    assert fit.params["sat_high"] == pytest.approx(hi, abs=0.1)
+    assert fit.params["tau"] == pytest.approx(30.0, rel=0.05)
+    assert fit.params["DB"] == pytest.approx(3.0, abs=0.1)
+    assert fit.heldout_rmse < 1.1 * sigma
+
+
+@pytest.mark.parametrize("plant, seed", [("self-regulating", 37), ("integrating", 1037)])
+def test_a_load_of_many_cycles_is_fitted_with_the_plant_behind_it(plant, seed):
+    """A 40-minute load of amplitude 4 over 4.5 h (6.75 cycles): its period
+    to 0.05 %, and the plant and band with it (the fit had settled at a
+    plant 15 times too slow on the self-regulating loop, at half the band
+    on the integrating one, each making up for a load out of phase)."""
+    data, sigma, _ = _loop(plant, seed, 4.5, load_sin_amplitude=4.0, load_sin_period=2400.0)
+    fit = LoopModel(("deadband", "oscillating_load"), plant).fit(data)
+    assert fit.params["load_period"] == pytest.approx(2400.0, rel=5e-4)
+    assert fit.params["DB"] == pytest.approx(3.0, abs=0.1)
+    if plant == "self-regulating":
+        assert fit.params["tau"] == pytest.approx(30.0, rel=0.05)
+    assert fit.heldout_rmse < 1.1 * sigma
