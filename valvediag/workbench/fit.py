@@ -615,13 +615,19 @@ def load_periods(data: LoopData, k: int = 2) -> np.ndarray:
     return res
 
 
+#: Most coarse periods searched about each periodogram peak.
+PERIOD_POINTS = 11
+
+
 def _period_axis(data: LoopData, coarse: bool) -> list[dict]:
     """Candidate periods of the oscillating load, as field dicts.
 
     About each periodogram peak (:func:`load_periods`), 2 % or a quarter of
     the periodogram's resolution (one cycle per record) either side, where
     that is wider. The coarse grid is spaced by 0.05 / m of the period for a
-    record of m cycles, at most 41 points a peak: a period off by ``e``
+    record of m cycles, at most :data:`PERIOD_POINTS` a peak (each period
+    needs its own load basis, and the grid is crossed with the valve's band
+    and the plant's time constant): a period off by ``e``
     puts the load out of phase by ``m e`` cycles at the record's ends, and
     a load a twentieth of a cycle out of phase is one a wrong time constant
     or band can make up for better than the right ones can.
@@ -631,7 +637,7 @@ def _period_axis(data: LoopData, coarse: bool) -> list[dict]:
     for q in load_periods(data):
         half = max(0.02, 0.25 * q / span)
         if coarse:
-            k = int(min(41, max(3, 2 * math.ceil(half / (0.05 * q / span)) + 1)))
+            k = int(min(PERIOD_POINTS, max(3, 2 * math.ceil(half / (0.05 * q / span)) + 1)))
         else:
             k = 9
         out += [dict(load_period=float(q * (1.0 + r))) for r in np.linspace(-half, half, k)]
