@@ -914,7 +914,7 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
     stops_axis = _stops(prob.data, SAT_JOINT) if "saturation" in prob.effects else [{}]
     # (the load's period, too: a period a few tenths of a per cent off and a
     # time constant tens of times too slow make up for each other)
-    period_axis = _period_axis(prob.data, True) if prob.oscillating else [{}]
+    period_axis = next((ax for ax in axes if "load_period" in ax[0]), [{}])
     for theta in origins if axes else ():
         for ax in axes:
             if "tau" in ax[0]:
