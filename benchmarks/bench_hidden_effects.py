@@ -9,8 +9,8 @@ unmeasured sinusoidal load, a PV read on a grid) x four parameter points across 
 integrating and a self-regulating plant x two seeds. Each record:
 4.5 h at 1 s, PI control (detuned where the hidden dead time or lag makes
 it unstable), set-point steps every 25-50 min (of 0.5-1.5 PV units; of
-8-12 where a curved characteristic is hidden, which shows only across the
-valve's travel: ``SP_STEPS``), measurement noise
+8-12 where a curved characteristic or saturation stops are hidden, which
+show only across the valve's travel: ``SP_STEPS``), measurement noise
 of 1 % of the PV's swing on the recorded PV (the noise floor of the held-out
 RMSE; for a PV read on a grid, the error of a perfect model of the reading).
 
@@ -72,7 +72,9 @@ GRID = {
 #: steps of 0.5-1.5 move the valve by 2-4 % OP, over which no curvature of
 #: the grid shows beyond the noise (the starting model's held-out error was
 #: within 5 % of the floor in 11 of its 16 cases), so its cases step by
-#: 8-12, which moves the valve over 10-20 % of its travel.
+#: 8-12, which moves the valve over 10-20 % of its travel. Saturation stops
+#: likewise: drawn within the 2-4 % the small steps move the valve, they lay
+#: closer together than the dead band (a valve with no stroke).
 SP_STEPS = {"characteristic": (8.0, 12.0), "saturation": (8.0, 12.0)}
 SP_STEP_DEFAULT = (0.5, 1.5)
 #: The valve of every case that does not hide a valve effect [% OP].
