@@ -20,12 +20,20 @@ records that show at least three slips through their noise (before, a valve
 that slipped unseen counted), which changed that class's loops in every set.
 
 Usage: python benchmarks/bench_realistic.py [--loops N] [--set dev|dev2|heldout|all] [--workers W]
+       [--classes C1,C2] [--misses] [--evidence FILE]
+
+``--evidence FILE`` writes one JSON line per loop of the development sets:
+its class, index and seed, truth and verdict, what was simulated (valve,
+tuning, lags, noise, storage) and the scan's evidence (Backlash Index,
+valve signature, valve events, the loop model's check), for studying where
+a method fails without re-running it. The held-out set is never written.
 """
 from __future__ import annotations
 
 import argparse
 import collections
 import datetime as dt
+import json
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -67,10 +75,11 @@ def _work(args):
     job = LoopJob(spec=spec, start=end - dt.timedelta(hours=24), end=end, problems=())
     t0 = time.perf_counter()
     r = analyse_loop(job, _frames(loop), ScanConfig(window_hours=24))
-    return dict(klass=klass, truth=loop.truth, verdict=r.verdict, reason=r.reason,
-                confidence=r.confidence, secs=time.perf_counter() - t0,
+    return dict(klass=klass, index=i, seed=seed, truth=loop.truth, verdict=r.verdict,
+                reason=r.reason, confidence=r.confidence, secs=time.perf_counter() - t0,
                 h=loop.sample_time, hours=loop.duration_s / 3600, known=known,
-                compressed=loop.params["compressed"], noise=loop.params["noise_pct"])
+                compressed=loop.params["compressed"], noise=loop.params["noise_pct"],
+                params=loop.params, evidence=r.evidence)
 
 
 def _report(rows, title, details=True):
@@ -112,13 +121,22 @@ def main():
     ap.add_argument("--loops", type=int, default=12, help="loops per class and set (default 12)")
     ap.add_argument("--set", choices=(*SETS, "all"), default="all")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--classes", default="",
+                    help="comma-separated classes to run (default every class)")
     ap.add_argument("--misses", action="store_true",
                     help="print every wrong verdict of the development sets")
+    ap.add_argument("--evidence", metavar="FILE",
+                    help="write each development-set loop's parameters and evidence as JSON lines")
     args = ap.parse_args()
+    classes = [c for c in args.classes.split(",") if c] or list(CLASSES)
+    unknown = sorted(set(classes) - set(CLASSES))
+    if unknown:
+        ap.error(f"unknown class {', '.join(unknown)}; choose from {', '.join(CLASSES)}")
+    out = open(args.evidence, "w") if args.evidence else None
     names = list(SETS) if args.set == "all" else [args.set]
     print(f"valvediag realistic benchmark on {os.cpu_count()} cores")
     for name in names:
-        jobs = [(k, i, SETS[name]) for k in CLASSES for i in range(args.loops)]
+        jobs = [(k, i, SETS[name]) for k in classes for i in range(args.loops)]
         t0 = time.perf_counter()
         with ProcessPoolExecutor(max_workers=max(1, args.workers)) as ex:
             rows = list(ex.map(_work, jobs, chunksize=2))
@@ -126,12 +144,20 @@ def main():
         details = name != "heldout"
         _report(rows, f"{name} set (seed {SETS[name]}), {time.perf_counter() - t0:.0f} s wall",
                 details)
+        if out is not None and details:
+            from valvediag.plain import to_plain
+
+            for r in rows:
+                out.write(json.dumps(to_plain({k: v for k, v in r.items() if k != "secs"}))
+                          + "\n")
         if args.misses and details:
             for r in rows:
                 if r["verdict"] != r["truth"]:
                     print(f"   {r['klass']:26s} -> {r['verdict']:18s} h={r['h']:g} "
                           f"{r['hours']:.0f}h known={r['known']} comp={r['compressed']} "
                           f"noise={r['noise']:.1f}: {r['reason'][:160]}")
+    if out is not None:
+        out.close()
 
 
 if __name__ == "__main__":
