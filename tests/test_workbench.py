@@ -152,6 +152,37 @@ def test_reinit_at_the_measured_pv(clean_backlash):
         prepare_loop(pv, sim.op, 1.0, reinit="zero")
 
 
+@pytest.mark.parametrize("process, reinit", [("integrating", "fit"),
+                                              ("self-regulating", "fit"),
+                                              ("self-regulating", "measured")])
+def test_free_response_removed_per_segment(clean_backlash, process, reinit):
+    """Each segment's free response (a constant for an integrator, a**j for a
+    first-order plant) leaves the columns as the segment's least-squares
+    projection, or from its first value when re-initialised at the measured
+    PV; samples not scored stay zero."""
+    sim, _ = clean_backlash
+    data = prepare_loop(sim.pv, sim.op, 1.0, reinit=reinit)
+    prob = Problem(data, ("deadband",), process)
+    qa = prob.qa(Theta(tau=40.0))
+    X = np.random.default_rng(3).standard_normal((data.n, 3)) + np.arange(data.n)[:, None] / 50
+    out = prob.project(X, qa)
+    scored = prob.sample_set >= 0
+    assert np.all(out[~scored] == 0.0)
+    for a, b in zip(data.seg_start, data.seg_end):
+        k = a + np.flatnonzero(scored[a:b])
+        if k.size < 2:
+            continue
+        w = qa ** (k - a)
+        if reinit == "measured":
+            expect = X[k] - w[:, None] * X[k[0]]
+        else:
+            coef = w @ X[k] / (w @ w)
+            expect = X[k] - w[:, None] * coef
+        np.testing.assert_allclose(out[k], expect, rtol=1e-9, atol=1e-9)
+    # a single signal gives the same as its column
+    np.testing.assert_allclose(prob.project(X[:, 1], qa), out[:, 1], rtol=0, atol=0)
+
+
 def test_correct_model_on_clean_data_fits_close_to_100(clean_backlash):
     _, data = clean_backlash
     fit = LoopModel(("deadband", "dead_time", "lag")).fit(data)

@@ -205,7 +205,7 @@ class Problem:
         if self.characteristic:
             lo, self.op_mid, hi = (float(v) for v in np.percentile(data.op, [1, 50, 99]))
             self.op_span = hi - lo if hi > lo else 1.0
-        self._bases = {math.inf: B}
+        self._bases = {math.inf: np.ascontiguousarray(B.T)}
         self.p = B.shape[1]
         self._setups: dict = {}
         self._mats: dict = {}
@@ -217,17 +217,31 @@ class Problem:
         self.n_train = int((self.sample_set == 0).sum())
         self.n_held = int((self.sample_set == 1).sum())
         self.wt = (self.sample_set >= 0).astype(float)
+        # the scored samples segment by segment (in time order within each),
+        # where each segment's first one is among them, and each one's place
+        # in its segment [samples]
+        use = np.flatnonzero(self.sample_set >= 0)
+        sid = self.seg_id[use]
+        order = np.argsort(sid, kind="stable")
+        self._use, sid = use[order], sid[order]
+        self._seg_first = np.flatnonzero(np.diff(sid, prepend=-1) != 0)
+        self._seg_place = self._use - data.seg_start[sid]
+        # the scored PV, and each sample set as weights
+        self._scored_pv = np.nan_to_num(np.where(self.sample_set >= 0, data.pv, 0.0))[None, :]
+        self._set_masks = np.stack([(self.sample_set == k).astype(float) for k in (0, 1)])
 
     def basis(self, theta: Theta) -> np.ndarray:
         """Load basis of a candidate (its columns depend on the load's period)."""
         key = theta.load_period if self.oscillating else math.inf
-        B = self._bases.get(key)
-        if B is None:
-            B = linear_columns(self.effects, self.data, self.drift_knots, key)[0]
+        BT = self._bases.get(key)
+        if BT is None:
+            # (kept one column per row: the plant filters them along the rows)
+            BT = np.ascontiguousarray(
+                linear_columns(self.effects, self.data, self.drift_knots, key)[0].T)
             if len(self._bases) > 64:
                 self._bases.clear()
-            self._bases[key] = B
-        return B
+            self._bases[key] = BT
+        return BT.T
 
     def group(self, theta: Theta) -> tuple:
         """Candidates of one group share the linear part (plant time constant,
@@ -242,46 +256,31 @@ class Problem:
             return 1.0
         return math.exp(-self.data.sample_time / theta.tau)
 
+    def project_rows(self, X, qa):
+        """:meth:`project` of each row of ``X`` (shape (p, n), C order)."""
+        use = self._use
+        w = np.ones(use.size) if qa == 1.0 else qa ** self._seg_place
+        out = np.zeros_like(X)
+        # (an integrator's rows less each segment's first value, for precision)
+        kernels.project_free_response(X, use, self._seg_first, w, self.anchored, qa == 1.0, out)
+        return out
+
     def project(self, X, qa):
         """Remove each segment's free response from the columns of ``X``:
         projected out (best initial state), or from the segment's first
         value (``data.reinit == 'measured'``)."""
         X = np.asarray(X, dtype=float)
-        two = X.ndim == 2
-        X2 = X if two else X[:, None]
-        sid = self.seg_id
-        use = self.sample_set >= 0
-        s = sid[use]
-        if qa == 1.0:
-            w = np.ones(int(use.sum()))
-        else:
-            j = np.flatnonzero(use) - self.data.seg_start[s]
-            w = qa ** j
-        nseg = self.data.seg_start.size
-        den = np.bincount(s, weights=w * w, minlength=nseg)
-        first_of = np.r_[0, np.flatnonzero(np.diff(s)) + 1]      # first used sample of each run
-        s_rank = np.cumsum(np.r_[0, (np.diff(s) != 0).astype(np.int64)])
-        out = np.zeros_like(X2)
-        for c in range(X2.shape[1]):
-            xs = X2[use, c]
-            if self.anchored:
-                # free response from the segment's first (measured) value
-                out[use, c] = xs - w * xs[first_of][s_rank]
-                continue
-            if qa == 1.0:
-                # subtract each segment's first value (precision for integrators)
-                xs = xs - xs[first_of][s_rank]
-            num = np.bincount(s, weights=w * xs, minlength=nseg)
-            out[use, c] = xs - w * (num / np.where(den > 0, den, 1.0))[s]
-        return out if two else out[:, 0]
+        if X.ndim == 2:
+            return self.project_rows(np.ascontiguousarray(X.T), qa).T
+        return self.project_rows(X[None, :], qa)[0]
 
     def plant_filter(self, b, theta: Theta):
-        """Response of the plant (unit gain) to a load basis held per sample."""
+        """Response of the plant (unit gain) to load signals held per sample, one per row."""
         h = self.data.sample_time
         if self.process_type == "integrating":
-            return lfilter([0.0, h], [1.0, -1.0], b, axis=0)
+            return lfilter([0.0, h], [1.0, -1.0], b, axis=-1)
         a = math.exp(-h / theta.tau)
-        return lfilter([0.0, 1.0 - a], [1.0, -a], b, axis=0)
+        return lfilter([0.0, 1.0 - a], [1.0, -a], b, axis=-1)
 
     def setup(self, theta: Theta):
         """Projected load columns, projected PV and their inner products."""
@@ -290,18 +289,22 @@ class Problem:
         if st is not None:
             return st
         qa = self.qa(theta)
-        y = np.where(self.sample_set >= 0, self.data.pv, 0.0)
-        Py = self.project(np.nan_to_num(y), qa)
-        W = self.project(self.plant_filter(self.basis(theta), theta), qa) if self.p else \
-            np.zeros((self.data.n, 0))
+        Py = self.project_rows(self._scored_pv, qa)[0]
+        # the load columns, one per row: through the plant, projected
+        WT1 = self.project_rows(self.plant_filter(self.basis(theta).T, theta), qa) if self.p \
+            else np.zeros((0, self.data.n))
         ystats = np.zeros((2, 1 + self.p))
         G2 = np.zeros((2, self.p, self.p))
+        # the load columns of each sample set, as the kernels read them
+        WT = np.empty((2, self.p, self.data.n))
         for s in (0, 1):
-            m = self.sample_set == s
-            ystats[s, 0] = Py[m] @ Py[m]
+            m = self._set_masks[s]
+            ystats[s, 0] = Py @ (m * Py)
+            np.multiply(WT1, m, out=WT[s])
             if self.p:
-                ystats[s, 1:] = W[m].T @ Py[m]
-                G2[s] = W[m].T @ W[m]
+                ystats[s, 1:] = WT[s] @ Py
+                G2[s] = WT[s] @ WT1.T
+        W = WT1.T
         Ginv = np.linalg.pinv(G2[0]) if self.p else np.zeros((0, 0))
         Lmax = int((self.data.seg_end - self.data.seg_start).max())
         qv = qa ** np.arange(Lmax, dtype=float) if qa != 1.0 else np.ones(Lmax)
@@ -313,8 +316,7 @@ class Problem:
             jj = np.flatnonzero(use) - self.data.seg_start[sid]
             for c in range(self.p):
                 qW[:, c] = np.bincount(sid, weights=qv[jj] * W[use, c], minlength=nseg)
-        WT = np.stack([(W * (self.sample_set == s)[:, None]).T for s in (0, 1)])
-        st = dict(qa=qa, qv=qv, qW=qW, Py=Py, W=W, WT=np.ascontiguousarray(WT), ystats=ystats,
+        st = dict(qa=qa, qv=qv, qW=qW, Py=Py, W=W, WT=WT, ystats=ystats,
                   G2=G2, Ginv=Ginv, GinvWy=Ginv @ ystats[0, 1:] if self.p else np.zeros(0))
         if len(self._setups) > 64:
             self._setups.clear()

@@ -32,7 +32,8 @@ import numpy as np
 
 from ..models.valves import HE, valve_flow, valve_init, valve_step
 
-__all__ = ["simulate_chain", "score_batch", "turning_points", "nudge_holds"]
+__all__ = ["simulate_chain", "score_batch", "turning_points", "nudge_holds",
+           "project_free_response"]
 
 
 @numba.njit(cache=True, inline="always")
@@ -243,6 +244,54 @@ def score_serial(u, vcode, P, seg_start, seg_end, seg_set, wt, qv, WT, qW, ancho
     for i in range(P.shape[0]):
         _score_one(u, vcode, P, i, seg_start, seg_end, seg_set, wt, qv, WT, qW, anchored, Py,
                    ystats, G2, Ginv, GinvWy, out, r)
+
+
+@numba.njit(cache=True, nogil=True)
+def project_free_response(X, use, first, w, anchored, from_first, out):
+    """Remove each segment's free response from the rows of ``X``, into ``out``.
+
+    Parameters
+    ----------
+    X : numpy.ndarray, shape (p, n)
+        One signal per row.
+    use : numpy.ndarray of int64, shape (m,)
+        The scored samples, segment by segment (in time order within each).
+    first : numpy.ndarray of int64
+        Position in ``use`` of each segment's first scored sample.
+    w : numpy.ndarray, shape (m,)
+        The plant's free response at each scored sample (``a**j``; ones
+        for an integrator).
+    anchored : bool
+        Subtract the free response from the segment's first value, else
+        project it out (the best initial state).
+    from_first : bool
+        (Projecting) subtract the segment's first value first (an
+        integrator's precision).
+    out : numpy.ndarray, shape (p, n)
+        Written at the scored samples.
+    """
+    m = use.size
+    nseg = first.size
+    for c in range(X.shape[0]):
+        x = X[c]
+        o = out[c]
+        for r in range(nseg):
+            a = first[r]
+            b = first[r + 1] if r + 1 < nseg else m
+            x0 = x[use[a]]
+            if anchored:
+                for i in range(a, b):
+                    o[use[i]] = x[use[i]] - w[i] * x0
+                continue
+            shift = x0 if from_first else 0.0
+            num = 0.0
+            den = 0.0
+            for i in range(a, b):
+                num += w[i] * (x[use[i]] - shift)
+                den += w[i] * w[i]
+            coef = num / den if den > 0.0 else 0.0
+            for i in range(a, b):
+                o[use[i]] = x[use[i]] - shift - w[i] * coef
 
 
 @numba.njit(cache=True, nogil=True)
