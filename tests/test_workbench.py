@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 import pytest
+from scipy.signal import lfilter
 
 from valvediag import simulate_loop
 from valvediag.models.closedloop import process_matrices
@@ -181,6 +182,29 @@ def test_free_response_removed_per_segment(clean_backlash, process, reinit):
         np.testing.assert_allclose(out[k], expect, rtol=1e-9, atol=1e-9)
     # a single signal gives the same as its column
     np.testing.assert_allclose(prob.project(X[:, 1], qa), out[:, 1], rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("process", ["integrating", "self-regulating"])
+def test_load_columns_through_the_plant_per_set(clean_backlash, process):
+    """The load columns the scores use are the load signals through the plant
+    (unit gain, held per sample), each segment's free response removed, and
+    split by sample set."""
+    sim, _ = clean_backlash
+    data = prepare_loop(sim.pv, sim.op, 1.0)
+    prob = Problem(data, ("deadband", "drift", "oscillating_load"), process)
+    th = Theta(tau=40.0, load_period=300.0)
+    B = prob.basis(th)
+    h = data.sample_time
+    if process == "integrating":
+        resp = lfilter([0.0, h], [1.0, -1.0], B, axis=0)
+    else:
+        a = math.exp(-h / th.tau)
+        resp = lfilter([0.0, 1.0 - a], [1.0, -a], B, axis=0)
+    W = prob.project(resp, prob.qa(th))
+    WT = prob.setup(th)["WT"]
+    for s in (0, 1):
+        expect = np.where((prob.sample_set == s)[:, None], W, 0.0)
+        np.testing.assert_allclose(WT[s].T, expect, rtol=1e-9, atol=1e-9 * np.abs(W).max())
 
 
 def test_correct_model_on_clean_data_fits_close_to_100(clean_backlash):

@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.signal import lfilter
 
 from ..models.closedloop import process_matrices
 from ..models.valves import BACKLASH, HE, KANO, LINEAR
@@ -229,6 +228,7 @@ class Problem:
         # the scored PV, and each sample set as weights
         self._scored_pv = np.nan_to_num(np.where(self.sample_set >= 0, data.pv, 0.0))[None, :]
         self._set_masks = np.stack([(self.sample_set == k).astype(float) for k in (0, 1)])
+        self._sets = np.maximum(self.sample_set, 0)
 
     def basis(self, theta: Theta) -> np.ndarray:
         """Load basis of a candidate (its columns depend on the load's period)."""
@@ -256,13 +256,17 @@ class Problem:
             return 1.0
         return math.exp(-self.data.sample_time / theta.tau)
 
+    def free_response(self, qa: float) -> np.ndarray:
+        """The plant's free response at each scored sample, ``qa**j`` at the
+        ``j``-th sample of its segment (ones for an integrator)."""
+        return np.ones(self._use.size) if qa == 1.0 else qa ** self._seg_place
+
     def project_rows(self, X, qa):
         """:meth:`project` of each row of ``X`` (shape (p, n), C order)."""
-        use = self._use
-        w = np.ones(use.size) if qa == 1.0 else qa ** self._seg_place
         out = np.zeros_like(X)
         # (an integrator's rows less each segment's first value, for precision)
-        kernels.project_free_response(X, use, self._seg_first, w, self.anchored, qa == 1.0, out)
+        kernels.project_free_response(X, self._use, self._seg_first, self.free_response(qa),
+                                      self.anchored, qa == 1.0, out)
         return out
 
     def project(self, X, qa):
@@ -274,13 +278,13 @@ class Problem:
             return self.project_rows(np.ascontiguousarray(X.T), qa).T
         return self.project_rows(X[None, :], qa)[0]
 
-    def plant_filter(self, b, theta: Theta):
-        """Response of the plant (unit gain) to load signals held per sample, one per row."""
+    def plant(self, theta: Theta) -> tuple[float, float]:
+        """The plant with unit gain per sample, ``y_k = a y_(k-1) + g b_(k-1)``: (a, g)."""
         h = self.data.sample_time
         if self.process_type == "integrating":
-            return lfilter([0.0, h], [1.0, -1.0], b, axis=-1)
+            return 1.0, h
         a = math.exp(-h / theta.tau)
-        return lfilter([0.0, 1.0 - a], [1.0, -a], b, axis=-1)
+        return a, 1.0 - a
 
     def setup(self, theta: Theta):
         """Projected load columns, projected PV and their inner products."""
@@ -290,21 +294,18 @@ class Problem:
             return st
         qa = self.qa(theta)
         Py = self.project_rows(self._scored_pv, qa)[0]
-        # the load columns, one per row: through the plant, projected
-        WT1 = self.project_rows(self.plant_filter(self.basis(theta).T, theta), qa) if self.p \
-            else np.zeros((0, self.data.n))
+        # the load columns, one per row and sample set: through the plant, projected
+        n = self.data.n
+        WT = np.empty((2, self.p, n))
+        kernels.plant_load_columns(self.basis(theta).T, *self.plant(theta), self._use,
+                                   self._seg_first, self.free_response(qa), self._sets,
+                                   self.anchored, qa == 1.0, WT, np.empty(n))
         ystats = np.zeros((2, 1 + self.p))
         G2 = np.zeros((2, self.p, self.p))
-        # the load columns of each sample set, as the kernels read them
-        WT = np.empty((2, self.p, self.data.n))
         for s in (0, 1):
-            m = self._set_masks[s]
-            ystats[s, 0] = Py @ (m * Py)
-            np.multiply(WT1, m, out=WT[s])
-            if self.p:
-                ystats[s, 1:] = WT[s] @ Py
-                G2[s] = WT[s] @ WT1.T
-        W = WT1.T
+            ystats[s, 0] = Py @ (self._set_masks[s] * Py)
+            ystats[s, 1:] = WT[s] @ Py
+            G2[s] = WT[s] @ WT[s].T
         Ginv = np.linalg.pinv(G2[0]) if self.p else np.zeros((0, 0))
         Lmax = int((self.data.seg_end - self.data.seg_start).max())
         qv = qa ** np.arange(Lmax, dtype=float) if qa != 1.0 else np.ones(Lmax)
@@ -314,9 +315,10 @@ class Problem:
             use = self.sample_set >= 0
             sid = self.seg_id[use]
             jj = np.flatnonzero(use) - self.data.seg_start[sid]
+            W = WT[0] + WT[1]
             for c in range(self.p):
-                qW[:, c] = np.bincount(sid, weights=qv[jj] * W[use, c], minlength=nseg)
-        st = dict(qa=qa, qv=qv, qW=qW, Py=Py, W=W, WT=WT, ystats=ystats,
+                qW[:, c] = np.bincount(sid, weights=qv[jj] * W[c, use], minlength=nseg)
+        st = dict(qa=qa, qv=qv, qW=qW, Py=Py, WT=WT, ystats=ystats,
                   G2=G2, Ginv=Ginv, GinvWy=Ginv @ ystats[0, 1:] if self.p else np.zeros(0))
         if len(self._setups) > 64:
             self._setups.clear()
@@ -395,7 +397,7 @@ class Problem:
         st = self.setup(theta)
         qa = st["qa"]
         Pr = self.project(r, qa)
-        X = np.column_stack([Pr, st["W"]])
+        X = np.column_stack([Pr, (st["WT"][0] + st["WT"][1]).T])
         tr = self.sample_set == 0
         coef, *_ = np.linalg.lstsq(X[tr], st["Py"][tr], rcond=None)
         e = st["Py"] - X @ coef

@@ -33,7 +33,7 @@ import numpy as np
 from ..models.valves import HE, valve_flow, valve_init, valve_step
 
 __all__ = ["simulate_chain", "score_batch", "turning_points", "nudge_holds",
-           "project_free_response"]
+           "project_free_response", "plant_load_columns"]
 
 
 @numba.njit(cache=True, inline="always")
@@ -246,6 +246,24 @@ def score_serial(u, vcode, P, seg_start, seg_end, seg_set, wt, qv, WT, qW, ancho
                    ystats, G2, Ginv, GinvWy, out, r)
 
 
+@numba.njit(cache=True, inline="always")
+def _free_response(x, use, i0, i1, w, anchored, from_first):
+    """One segment's free response in ``x`` at the samples ``use[i0:i1]``:
+    ``x - shift - w coef`` removes it. Anchored, from the segment's first
+    value (shift 0, coef that value); else projected out, after the first
+    value is subtracted when ``from_first``."""
+    x0 = x[use[i0]]
+    if anchored:
+        return 0.0, x0
+    shift = x0 if from_first else 0.0
+    num = 0.0
+    den = 0.0
+    for i in range(i0, i1):
+        num += w[i] * (x[use[i]] - shift)
+        den += w[i] * w[i]
+    return shift, (num / den if den > 0.0 else 0.0)
+
+
 @numba.njit(cache=True, nogil=True)
 def project_free_response(X, use, first, w, anchored, from_first, out):
     """Remove each segment's free response from the rows of ``X``, into ``out``.
@@ -276,22 +294,55 @@ def project_free_response(X, use, first, w, anchored, from_first, out):
         x = X[c]
         o = out[c]
         for r in range(nseg):
-            a = first[r]
-            b = first[r + 1] if r + 1 < nseg else m
-            x0 = x[use[a]]
-            if anchored:
-                for i in range(a, b):
-                    o[use[i]] = x[use[i]] - w[i] * x0
-                continue
-            shift = x0 if from_first else 0.0
-            num = 0.0
-            den = 0.0
-            for i in range(a, b):
-                num += w[i] * (x[use[i]] - shift)
-                den += w[i] * w[i]
-            coef = num / den if den > 0.0 else 0.0
-            for i in range(a, b):
+            i0 = first[r]
+            i1 = first[r + 1] if r + 1 < nseg else m
+            shift, coef = _free_response(x, use, i0, i1, w, anchored, from_first)
+            for i in range(i0, i1):
                 o[use[i]] = x[use[i]] - shift - w[i] * coef
+
+
+@numba.njit(cache=True, nogil=True)
+def plant_load_columns(B, a, g, use, first, w, sets, anchored, from_first, WT, buf):
+    """Load signals through the plant, each segment's free response removed, per sample set.
+
+    Parameters
+    ----------
+    B : numpy.ndarray, shape (p, n)
+        The load signals, one per row, held per sample.
+    a, g : float
+        The plant with unit gain, ``y_k = a y_(k-1) + g b_(k-1)`` from
+        ``y_0 = 0`` (``a = 1, g = h`` an integrator; ``a = exp(-h/tau),
+        g = 1 - a`` a first-order plant).
+    use, first, w, anchored, from_first
+        As :func:`project_free_response`.
+    sets : numpy.ndarray of int64, shape (n,)
+        Sample set of each sample: 0 training, 1 held-out.
+    WT : numpy.ndarray, shape (2, p, n)
+        Written whole: row ``c`` of set ``s`` holds the projected response
+        at that set's samples and zero elsewhere.
+    buf : numpy.ndarray, shape (n,)
+        Work space.
+    """
+    p, n = B.shape
+    m = use.size
+    nseg = first.size
+    for c in range(p):
+        y = 0.0
+        buf[0] = 0.0
+        WT[0, c, 0] = 0.0
+        WT[1, c, 0] = 0.0
+        for k in range(1, n):
+            y = g * B[c, k - 1] + a * y
+            buf[k] = y
+            WT[0, c, k] = 0.0
+            WT[1, c, k] = 0.0
+        for r in range(nseg):
+            i0 = first[r]
+            i1 = first[r + 1] if r + 1 < nseg else m
+            shift, coef = _free_response(buf, use, i0, i1, w, anchored, from_first)
+            for i in range(i0, i1):
+                k = use[i]
+                WT[sets[k], c, k] = buf[k] - shift - w[i] * coef
 
 
 @numba.njit(cache=True, nogil=True)
