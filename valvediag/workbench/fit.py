@@ -225,9 +225,8 @@ class Problem:
         self._use, sid = use[order], sid[order]
         self._seg_first = np.flatnonzero(np.diff(sid, prepend=-1) != 0)
         self._seg_place = self._use - data.seg_start[sid]
-        # the scored PV, and each sample set as weights
+        # the scored PV, and each sample's set (0 where not scored)
         self._scored_pv = np.nan_to_num(np.where(self.sample_set >= 0, data.pv, 0.0))[None, :]
-        self._set_masks = np.stack([(self.sample_set == k).astype(float) for k in (0, 1)])
         self._sets = np.maximum(self.sample_set, 0)
 
     def basis(self, theta: Theta) -> np.ndarray:
@@ -261,12 +260,14 @@ class Problem:
         ``j``-th sample of its segment (ones for an integrator)."""
         return np.ones(self._use.size) if qa == 1.0 else qa ** self._seg_place
 
-    def project_rows(self, X, qa):
-        """:meth:`project` of each row of ``X`` (shape (p, n), C order)."""
+    def project_rows(self, X, qa, w=None):
+        """:meth:`project` of each row of ``X`` (shape (p, n), C order); ``w``
+        is :meth:`free_response` when the caller has it."""
         out = np.zeros_like(X)
+        w = self.free_response(qa) if w is None else w
         # (an integrator's rows less each segment's first value, for precision)
-        kernels.project_free_response(X, self._use, self._seg_first, self.free_response(qa),
-                                      self.anchored, qa == 1.0, out)
+        kernels.project_free_response(X, self._use, self._seg_first, w, self.anchored,
+                                      qa == 1.0, out)
         return out
 
     def project(self, X, qa):
@@ -293,17 +294,19 @@ class Problem:
         if st is not None:
             return st
         qa = self.qa(theta)
-        Py = self.project_rows(self._scored_pv, qa)[0]
+        w = self.free_response(qa)
+        Py = self.project_rows(self._scored_pv, qa, w)[0]
         # the load columns, one per row and sample set: through the plant, projected
         n = self.data.n
         WT = np.empty((2, self.p, n))
         kernels.plant_load_columns(self.basis(theta).T, *self.plant(theta), self._use,
-                                   self._seg_first, self.free_response(qa), self._sets,
-                                   self.anchored, qa == 1.0, WT, np.empty(n))
+                                   self._seg_first, w, self._sets, self.anchored, qa == 1.0,
+                                   WT, np.empty(n))
         ystats = np.zeros((2, 1 + self.p))
+        ystats[:, 0] = np.bincount(self._sets[self._use], weights=Py[self._use] ** 2,
+                                   minlength=2)
         G2 = np.zeros((2, self.p, self.p))
         for s in (0, 1):
-            ystats[s, 0] = Py @ (self._set_masks[s] * Py)
             ystats[s, 1:] = WT[s] @ Py
             G2[s] = WT[s] @ WT[s].T
         Ginv = np.linalg.pinv(G2[0]) if self.p else np.zeros((0, 0))
@@ -312,12 +315,10 @@ class Problem:
         nseg = self.data.seg_start.size
         qW = np.zeros((nseg, self.p))
         if self.anchored and self.p:
-            use = self.sample_set >= 0
-            sid = self.seg_id[use]
-            jj = np.flatnonzero(use) - self.data.seg_start[sid]
-            W = WT[0] + WT[1]
-            for c in range(self.p):
-                qW[:, c] = np.bincount(sid, weights=qv[jj] * W[c, use], minlength=nseg)
+            # each segment's sum of its free response times the load columns
+            present = self.seg_id[self._use[self._seg_first]]
+            qW[present] = np.add.reduceat((WT[0] + WT[1])[:, self._use] * w, self._seg_first,
+                                          axis=1).T
         st = dict(qa=qa, qv=qv, qW=qW, Py=Py, WT=WT, ystats=ystats,
                   G2=G2, Ginv=Ginv, GinvWy=Ginv @ ystats[0, 1:] if self.p else np.zeros(0))
         if len(self._setups) > 64:
