@@ -96,3 +96,24 @@ def test_a_load_of_many_cycles_is_fitted_with_the_plant_behind_it(plant, seed):
     if plant == "self-regulating":
         assert fit.params["tau"] == pytest.approx(30.0, rel=0.05)
     assert fit.heldout_rmse < 1.1 * sigma
+
+
+def test_the_time_constants_grid_costs_no_accuracy(monkeypatch):
+    """The simplex reads the plant's time constant on a grid of 0.1 % (each
+    new one passes the load columns through the plant again): the fit of a
+    dead band with a dead time on a fast self-regulating plant is the
+    continuous search's to 0.2 % in the time constant and 0.5 % in the
+    held-out error, and both find the truth."""
+    import valvediag.workbench.fit as fit_module
+
+    data, sigma, _ = _loop("self-regulating", 5, 2.0, dead_time=6.0)
+    model = LoopModel(("deadband", "dead_time"), "self-regulating")
+    on_grid = model.fit(data)
+    monkeypatch.setattr(fit_module, "TAU_STEP", 1e-12)
+    free = model.fit(data)
+    assert on_grid.params["tau"] == pytest.approx(free.params["tau"], rel=2e-3)
+    assert on_grid.heldout_rmse == pytest.approx(free.heldout_rmse, rel=5e-3)
+    for fit in (on_grid, free):
+        assert fit.params["tau"] == pytest.approx(30.0, rel=0.05)
+        assert fit.params["dead_time"] == pytest.approx(6.0, abs=1.0)
+        assert fit.heldout_rmse < 1.1 * sigma

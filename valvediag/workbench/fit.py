@@ -146,6 +146,10 @@ def linear_columns(effects, data: LoopData, drift_knots: int, load_period: float
     return B, names, span, knots
 
 
+#: Plant time constants (and load periods) whose load columns a problem keeps.
+SETUPS_KEPT = 64
+
+
 class Problem:
     """A loop model (effects, process type) posed on prepared data.
 
@@ -290,8 +294,9 @@ class Problem:
     def setup(self, theta: Theta):
         """Projected load columns, projected PV and their inner products."""
         key = self.group(theta)
-        st = self._setups.get(key)
+        st = self._setups.pop(key, None)
         if st is not None:
+            self._setups[key] = st        # (the most recently used last)
             return st
         qa = self.qa(theta)
         w = self.free_response(qa)
@@ -321,8 +326,10 @@ class Problem:
                                           axis=1).T
         st = dict(qa=qa, qv=qv, qW=qW, Py=Py, WT=WT, ystats=ystats,
                   G2=G2, Ginv=Ginv, GinvWy=Ginv @ ystats[0, 1:] if self.p else np.zeros(0))
-        if len(self._setups) > 64:
-            self._setups.clear()
+        if len(self._setups) >= SETUPS_KEPT:
+            # the least recently used one goes: the simplex returns to the
+            # time constants of its last steps
+            del self._setups[next(iter(self._setups))]
         self._setups[key] = st
         return st
 
@@ -731,6 +738,13 @@ def _continuous(prob: Problem, theta: Theta):
     return names, np.array(x0, dtype=float), np.array(steps, dtype=float)
 
 
+#: Step of the simplex's natural logarithm of the plant's time constant: each
+#: new time constant passes the load columns through the plant again (a pass
+#: over the record, the dearest part of a candidate), and the simplex's last
+#: steps, well inside the error's valley, would each make a new one.
+TAU_STEP = 1e-3
+
+
 def _from_vector(theta: Theta, names, v, dmax, bm, tau_max=math.inf,
                  sat_reach=(math.inf, -math.inf), span=1.0) -> Theta:
     kw = {}
@@ -756,8 +770,10 @@ def _from_vector(theta: Theta, names, v, dmax, bm, tau_max=math.inf,
             kw["lag"] = float(math.exp(min(val, 50.0)))
         elif nm == "logtau":
             # within the searched range: beyond it the plant is an integrator
-            # whose gain and operating point run off together
-            kw["tau"] = float(min(math.exp(min(val, 50.0)), tau_max))
+            # whose gain and operating point run off together; on a grid of
+            # TAU_STEP, so that the simplex's last steps reuse the load columns
+            val = round(min(float(val), 50.0) / TAU_STEP) * TAU_STEP
+            kw["tau"] = float(min(math.exp(val), tau_max))
     if "S" in kw:
         kw["J"] = kw.pop("Jr", 0.0) * kw["S"]
     lo, hi = kw.get("sat_low", theta.sat_low), kw.get("sat_high", theta.sat_high)
@@ -769,7 +785,9 @@ def _from_vector(theta: Theta, names, v, dmax, bm, tau_max=math.inf,
 def _refine(prob: Problem, theta: Theta, maxfev: int) -> tuple[Theta, float]:
     """Nelder-Mead on all continuous searched parameters jointly (valve
     bands, dead time, lag, time constant): their errors trade off along
-    valleys that a coordinate-wise search crosses slowly."""
+    valleys that a coordinate-wise search crosses slowly. The plant's time
+    constant is read on a grid of :data:`TAU_STEP` in its logarithm (0.1 %),
+    which the simplex's last steps reach inside the error's valley."""
     names, x0, steps = _continuous(prob, theta)
     f0 = float(prob.score([theta])[0, 0])
     if not names:
