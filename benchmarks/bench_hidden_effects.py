@@ -30,6 +30,7 @@ time: except where reported indistinguishable); error falls >= 30 % or ends
 within 1.25 x the floor in >= 90 %; no absent effect accepted.
 
 Usage: python benchmarks/bench_hidden_effects.py [--workers W] [--seeds 2] [--hours 4.5]
+       [--effects saturation,quantisation]
 """
 from __future__ import annotations
 
@@ -88,7 +89,8 @@ NOISE_PCT = 1.0
 
 
 def simulate_case(hidden: str, point: dict, plant: str, seed: int, hours: float):
-    """PV, OP, SP and the noise floor of one case."""
+    """PV, OP, SP, the noise floor of one case, and where the valve stood
+    at a saturation stop (``{'low': mask, 'high': mask}``, else None)."""
     from valvediag import simulate_loop
     from valvediag.synth.cases import alternating_steps
     from valvediag.workbench.data import growing_swing
@@ -138,8 +140,12 @@ def simulate_case(hidden: str, point: dict, plant: str, seed: int, hours: float)
         pv = step * np.round(pv / step)
         perfect = pv - quantised_mean(clean, step, 0.0, sigma)
         floor = float(np.sqrt(np.mean(perfect[n // 10:] ** 2)))
-        return pv, op, kw["sp_profile"], floor
-    return pv, op, kw["sp_profile"], sigma
+        return pv, op, kw["sp_profile"], floor, None
+    at_stop = None
+    if hidden == "saturation":
+        lo, hi = kw["valve_limits"]
+        at_stop = dict(low=sim.mv <= lo + 1e-9, high=sim.mv >= hi - 1e-9)
+    return pv, op, kw["sp_profile"], sigma, at_stop
 
 
 def run_case(args):
@@ -149,7 +155,7 @@ def run_case(args):
 
     hidden, k, point, plant, seed, hours = args
     start, _ = GRID[hidden]
-    pv, op, sp, sigma = simulate_case(hidden, point, plant, seed, hours)
+    pv, op, sp, sigma, at_stop = simulate_case(hidden, point, plant, seed, hours)
     out = dict(hidden=hidden, point=k, plant=plant, seed=seed)
     t0 = time.perf_counter()
     try:
@@ -157,6 +163,12 @@ def run_case(args):
     except WorkbenchDataError as exc:
         out.update(refused=str(exc), seconds=time.perf_counter() - t0)
         return out
+    if at_stop is not None:
+        # a stop that the valve reaches in no training block cannot be fitted
+        # (the fit sees only those), only checked on the held-out blocks
+        ss = data.sample_set
+        out["stop_samples"] = {side: (int((m & (ss == 0)).sum()), int((m & (ss == 1)).sum()))
+                               for side, m in at_stop.items()}
     ladder = forward_select(data, start, process_type=plant, max_steps=2)
     sug = ladder.steps[0].suggestions
     top = sug.items[0]
@@ -180,22 +192,29 @@ def main():
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--seeds", type=int, default=2, help="seeds per grid point")
     ap.add_argument("--hours", type=float, default=4.5, help="record length [h]")
+    ap.add_argument("--effects", default=None,
+                    help="comma-separated hidden effects to run (default all; a case's seed "
+                         "does not depend on which run)")
     args = ap.parse_args()
+    effects = list(GRID) if args.effects is None else args.effects.split(",")
+    unknown = [e for e in effects if e not in GRID]
+    if unknown:
+        ap.error(f"unknown effect(s) {', '.join(unknown)}; choose from {', '.join(GRID)}")
     cases = [(h, k, p, plant, 1000 * s + 10 * k + j, args.hours)
-             for j, h in enumerate(GRID) for k, p in enumerate(GRID[h][1])
+             for j, h in enumerate(GRID) if h in effects for k, p in enumerate(GRID[h][1])
              for plant in PLANTS for s in range(args.seeds)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as ex:
         res = list(ex.map(run_case, cases))
     wall = time.perf_counter() - t0
-    print(f"hidden-effect benchmark: {len(res)} cases ({len(GRID)} effects x 4 points x "
+    print(f"hidden-effect benchmark: {len(res)} cases ({len(effects)} effects x 4 points x "
           f"{len(PLANTS)} plants x {args.seeds} seeds), {args.hours:g} h at 1 s, "
           f"{os.cpu_count()} cores, {args.workers} workers, {wall:.0f} s wall, "
           f"{sum(r['seconds'] for r in res):.0f} s of fitting")
     print(f"\n{'effect':12s} {'plant':16s} {'n':>3s} {'first':>6s} {'tie':>4s} {'fall med':>9s} "
           f"{'err/floor':>10s} {'fall>=30%|<=1.25':>17s} {'absent acc':>11s} {'as pair':>8s} "
           f"{'refused':>8s}")
-    rows = [(h, plant) for h in GRID for plant in PLANTS] + [(h, None) for h in GRID]
+    rows = [(h, plant) for h in effects for plant in PLANTS] + [(h, None) for h in effects]
     for h, plant in rows:
         sel = [r for r in res if r["hidden"] == h and (plant is None or r["plant"] == plant)]
         ok = [r for r in sel if "refused" not in r]
@@ -216,9 +235,14 @@ def main():
           "'none' if none accepted)")
     cols = list(GRID) + ["none"]
     print(f"{'':12s} " + " ".join(f"{c[:9]:>9s}" for c in cols))
-    for h in GRID:
+    for h in effects:
         c = Counter(r["first"] for r in res if r["hidden"] == h and "refused" not in r)
         print(f"{h:12s} " + " ".join(f"{c.get(x, 0):9d}" for x in cols))
+    unseen = [r for r in res if any(n[0] == 0 for n in r.get("stop_samples", {}).values())]
+    if any("stop_samples" in r for r in res):
+        print(f"\nsaturation cases with a stop the valve reaches in no training block (it can "
+              f"only be checked, not fitted): {len(unseen)}, of which the hidden effect came "
+              f"first in {sum(r.get('first') == 'saturation' for r in unseen)}")
     bad = [r for r in res if "refused" in r or (r["first"] != r["hidden"] and not r["tie"])
            or r["absent"]]
     if bad:
@@ -227,7 +251,10 @@ def main():
             what = r.get("refused") or (
                 f"first {r['first']}, fall {100 * r['fall']:.0f} %, "
                 f"err/floor {r['floor']:.2f}, absent accepted {r['absent']}"
-                + (f", accepted as a pair {r['paired']}" if r["paired"] else ""))
+                + (f", accepted as a pair {r['paired']}" if r["paired"] else "")
+                + ("; valve samples at its stops (training, held-out): " + ", ".join(
+                    f"{side} {n[0]}, {n[1]}" for side, n in r["stop_samples"].items())
+                   if "stop_samples" in r else ""))
             print(f"  {r['hidden']:10s} point {r['point']} {r['plant']:15s} "
                   f"seed {r['seed']}: {what}")
 
