@@ -815,6 +815,14 @@ def _refine(prob: Problem, theta: Theta, maxfev: int) -> tuple[Theta, float]:
     return theta, f0
 
 
+def refine(prob: Problem, theta: Theta, maxfev: int | None = None) -> Theta:
+    """Local refinement alone: Nelder-Mead on every continuous searched
+    parameter from ``theta`` (no grid), for a problem whose optimum moved a
+    little from ``theta``'s (``maxfev`` as in :func:`search`)."""
+    names, _, _ = _continuous(prob, theta)
+    return _refine(prob, theta, maxfev or 40 * len(names) + 20)[0]
+
+
 def initial_theta(prob: Problem) -> Theta:
     """A starting point: mid-range values of the searched parameters."""
     d = prob.data
@@ -912,7 +920,9 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
     its stops a part of the time passed for a plant a hundred times
     slower), and with the load's periods (a load a few tenths of a per cent
     off its period, out of phase at the record's ends, passed for a plant
-    fifteen times slower); the valve band is crossed with the load's
+    fifteen times slower), and with the characteristic's curvature (a
+    curved valve read as a straight one passed for a plant a quarter
+    faster with a band half as wide again); the valve band is crossed with the load's
     periods (on an integrating plant, a band too narrow by half made up for
     a load out of phase). With a warm
     start the stages run from it and from the cold start: from a smaller
@@ -938,6 +948,7 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
     # (the load's period, too: a period a few tenths of a per cent off and a
     # time constant tens of times too slow make up for each other)
     period_axis = next((ax for ax in axes if "load_period" in ax[0]), [{}])
+    curv_axis = next((ax for ax in axes if "curvature" in ax[0]), [{}])
     for theta in origins if axes else ():
         for ax in axes:
             if "tau" in ax[0]:
@@ -949,6 +960,11 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
                          for s in stops_axis]
                 if prob.oscillating:
                     cands += [theta.replace(**a, **q) for a in ax for q in period_axis]
+                if prob.characteristic:
+                    # (and the curvature: a curved valve read as a straight one
+                    # passes for a plant of another time constant and a wider
+                    # band, and from there the simplex stays in that valley)
+                    cands += [theta.replace(**a, **c) for a in ax for c in curv_axis]
             elif prob.vcode != LINEAR and any(k in ax[0] for k in ("delay", "lag")):
                 cands = [theta.replace(**a, **v) for a in ax for v in valve_axis]
             else:

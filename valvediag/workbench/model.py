@@ -35,7 +35,7 @@ from ..models.valves import HE, KANO
 from ..plain import finite_or_none
 from .data import LoopData, shade_heldout
 from .effects import EFFECTS, PLANT_PARAMS, check_effects
-from .fit import LOAD_HARMONICS, PROCESS_TYPES, Problem, Theta, search
+from .fit import LOAD_HARMONICS, PROCESS_TYPES, Problem, Theta, refine, search
 from .sensor import fit_quantiser
 
 __all__ = ["LoopModel", "ModelFit", "fit_model"]
@@ -445,8 +445,10 @@ def _segment_demeaned(d: LoopData) -> np.ndarray:
     return d._cache[key]
 
 
-#: Refits of the chain to the process values the readings allow (EM steps).
-DEQUANTISE_STEPS = 2
+#: Most refits of the chain to the process values the readings allow (EM steps).
+DEQUANTISE_STEPS = 30
+#: ... made while the readings' training RMSE falls by more than this share a step.
+DEQUANTISE_TOL = 1e-3
 
 
 def _dequantised_refit(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
@@ -459,12 +461,25 @@ def _dequantised_refit(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
     expectation there (a normal of mean ``y`` and deviation ``s`` truncated
     to the cell; the point of the cell nearest ``y`` when ``s`` is 0) is
     what the chain is refitted to, warm-started (an EM step for
-    interval-censored least squares). Each step costs one search.
+    interval-censored least squares). The first step is a whole search,
+    the later ones a local refinement (:func:`~valvediag.workbench.fit.refine`),
+    until the training RMSE falls by less than :data:`DEQUANTISE_TOL` (at
+    most :data:`DEQUANTISE_STEPS`).
+
+    Notes
+    -----
+    EM converges slowly where the staircase is coarse (each step moves the
+    chain by a part of the way: the training RMSE of a PV read on a grid of
+    ten noise deviations fell 0.5, 0.4, ... 0.15 % a step, still falling
+    after twelve). Stopped after two steps, the fit was left short of its
+    optimum, and a candidate effect refitted on top of it went further
+    along the same way and passed for a gain of 1-2 % in the held-out
+    error: an effect absent from the data accepted.
     """
     fit = _result(model, prob, th)
     grid = prob.data.pv_grid
     d = prob.data
-    for _ in range(DEQUANTISE_STEPS):
+    for i in range(DEQUANTISE_STEPS):
         s = fit.params.get("quant_noise", math.inf)
         if not (grid.found and s < grid.step):
             break
@@ -475,11 +490,14 @@ def _dequantised_refit(model: LoopModel, prob: Problem, th: Theta) -> ModelFit:
         v = np.where(np.isfinite(v), v, d.pv)
         prob2 = Problem(replace(d, pv=v, _cache={}), model.effects, model.process_type,
                         model.drift_knots, model.valve_model, th.band)
-        th2 = search(prob2, th)
+        th2 = search(prob2, th) if i == 0 else refine(prob2, th)
         fit2 = _result(model, prob2, th2, readings=d)
         if not fit2.train_rmse < fit.train_rmse:
             break
+        fall = 1.0 - fit2.train_rmse / fit.train_rmse
         fit, prob, th = fit2, prob2, th2
+        if fall < DEQUANTISE_TOL:
+            break
     return fit
 
 
