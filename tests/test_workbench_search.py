@@ -6,7 +6,8 @@ grid misses by a tenth (a slow plant forgives that, a fast one does not),
 saturation stops on a self-regulating plant (a valve held at its stops
 passes for a slower plant with a wider band), a stop that no sample
 reaches (it is left out rather than placed where it cuts the held-out
-moves), and an oscillating load of many cycles (a period a few tenths of a
+moves), a stop in the lumpy tail of an OP that rests at set-point levels,
+held-out blocks that stay within the OP's training range, and an oscillating load of many cycles (a period a few tenths of a
 per cent off passes for a slower plant or a narrower band).
 
 Loops: PI control, a dead-band valve of 3 % OP, 1 s samples, set-point
@@ -84,6 +85,37 @@ def test_saturation_stops_on_a_self_regulating_plant_are_found(seed, reach):
     assert fit.params["tau"] == pytest.approx(30.0, rel=0.05)
     assert fit.params["DB"] == pytest.approx(3.0, abs=0.1)
     assert fit.heldout_rmse < 1.1 * sigma
+
+
+def test_the_held_out_blocks_ask_for_no_op_the_training_blocks_lack():
+    """A valve whose low stop the OP passes in one excursion, which fell in a
+    held-out block: that segment moves to training, and no held-out segment's
+    OP then leaves the training blocks' range by more than the reversal
+    hysteresis (a stop seen only in held-out blocks cannot be fitted, and a
+    dead time had been accepted for what the model did there)."""
+    data, _, _ = _loop("integrating", 1005, 4.5, steps=(8.0, 12.0), reach=0.75)
+    assert data.moved_to_training >= 1
+    ss = data.sample_set
+    lo, hi = data.op[ss == 0].min(), data.op[ss == 0].max()
+    held = data.op[ss == 1]
+    assert held.min() >= lo - data.op_delta and held.max() <= hi + data.op_delta
+    assert (data.seg_set == 1).sum() >= 0.5 * ((data.seg_set >= 0).sum() // 2)
+
+
+def test_a_stop_in_the_lumpy_tail_of_the_op_is_found():
+    """The OP rests at set-point levels, so its tails are lumpy: the stop the
+    valve reaches in 0.36 % of the record lies at -1.78, between the OP's
+    0.2 % and 0.5 % percentiles (-3.7 and -0.13). The search found no stop
+    from the 0.5 % point, and the plant made up for it (a time constant of
+    36 s, held-out 1.05 times the noise); from the finer grid both stops,
+    the plant and the band."""
+    data, sigma, (lo, hi) = _loop("self-regulating", 5, 4.5, steps=(8.0, 12.0), reach=0.75)
+    base = LoopModel(("deadband",), "self-regulating").fit(data)
+    fit = base.model.add("saturation").fit(data, start=base)
+    assert fit.params["sat_low"] == pytest.approx(lo, abs=0.1)
+    assert fit.params["sat_high"] == pytest.approx(hi, abs=0.1)
+    assert fit.params["tau"] == pytest.approx(30.0, rel=0.05)
+    assert fit.heldout_rmse < 1.02 * sigma < base.heldout_rmse
 
 
 @pytest.mark.parametrize("plant, seed", [("self-regulating", 37), ("integrating", 1037)])
