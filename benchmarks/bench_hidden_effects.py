@@ -152,6 +152,12 @@ def run_case(args):
     """Forward selection from the starting model; the figures of one case."""
     from valvediag.workbench import forward_select, prepare_loop
     from valvediag.workbench.data import WorkbenchDataError
+    from valvediag.workbench.suggest import compare_heldout
+
+    def gain_t(a, b):
+        # > 0 where a's held-out error is the lower
+        c = compare_heldout(a, b, ("a", "b"))
+        return c.t if c.effects[0] == "a" else -c.t
 
     hidden, k, point, plant, seed, hours = args
     start, _ = GRID[hidden]
@@ -180,7 +186,15 @@ def run_case(args):
     steps = ladder.steps[1:]
     absent = [s.added for s in steps if s.added != hidden and hidden not in s.alternatives]
     paired = [s.added for s in steps if s.added != hidden and hidden in s.alternatives]
+    # how far beyond the noise of the held-out segments each gain lies: the
+    # hidden effect's against the start, each added effect's against the rung
+    # below (paired t over the held-out segments, compare_heldout)
+    t_added = [gain_t(s.fit, r.fit) for r, s in zip(ladder.steps, steps)]
     out.update(first=top.effect if top.accepted else "none", tie=tie,
+               t_mine=gain_t(mine.fit, sug.base), t_added=t_added,
+               bic_mine=sug.base.bic - mine.bic,
+               bic_added=[r.fit.bic - s.fit.bic for r, s in zip(ladder.steps, steps)],
+               steps=[s.added for s in steps],
                fall=1.0 - mine.heldout_rmse / sug.base.heldout_rmse,
                floor=mine.heldout_rmse / sigma, absent=absent, paired=paired,
                seconds=time.perf_counter() - t0)
@@ -243,6 +257,18 @@ def main():
         print(f"\nsaturation cases with a stop the valve reaches in no training block (it can "
               f"only be checked, not fitted): {len(unseen)}, of which the hidden effect came "
               f"first in {sum(r.get('first') == 'saturation' for r in unseen)}")
+    ok = [r for r in res if "refused" not in r]
+    firsts = sorted((r["t_mine"], r["bic_mine"]) for r in ok if r["first"] == r["hidden"])
+    absent_t = [(t, b) for r in ok for s, t, b in zip(r["steps"], r["t_added"], r["bic_added"])
+                if s != r["hidden"] and s not in r["paired"]]
+    if firsts:
+        print("\nthe evidence for an accepted effect, as (paired t of its held-out gain over "
+              "the held-out segments, fall of the BIC): the hidden effect ranked first, "
+              "against the start, lowest t: "
+              + ", ".join(f"({t:.1f}, {b:.0f})" for t, b in firsts[:8])
+              + f"; lowest fall of the BIC {min(b for _, b in firsts):.0f}; absent effects "
+              "accepted, against the rung below: "
+              + (", ".join(f"({t:.1f}, {b:.1f})" for t, b in absent_t) or "none"))
     bad = [r for r in res if "refused" in r or (r["first"] != r["hidden"] and not r["tie"])
            or r["absent"]]
     if bad:
@@ -252,6 +278,10 @@ def main():
                 f"first {r['first']}, fall {100 * r['fall']:.0f} %, "
                 f"err/floor {r['floor']:.2f}, absent accepted {r['absent']}"
                 + (f", accepted as a pair {r['paired']}" if r["paired"] else "")
+                + f", t {r['t_mine']:.1f}, BIC fall {r['bic_mine']:.1f}"
+                + (" (added: " + ", ".join(f"t {x:.1f}, BIC fall {b:.1f}" for x, b in
+                                          zip(r["t_added"], r["bic_added"])) + ")"
+                   if r["t_added"] else "")
                 + ("; valve samples at its stops (training, held-out): " + ", ".join(
                     f"{side} {n[0]}, {n[1]}" for side, n in r["stop_samples"].items())
                    if "stop_samples" in r else ""))
