@@ -7,8 +7,9 @@ saturation stops on a self-regulating plant (a valve held at its stops
 passes for a slower plant with a wider band), a stop that no sample
 reaches (it is left out rather than placed where it cuts the held-out
 moves), a stop in the lumpy tail of an OP that rests at set-point levels,
-held-out blocks that stay within the OP's training range, and an oscillating load of many cycles (a period a few tenths of a
-per cent off passes for a slower plant or a narrower band).
+held-out blocks that stay within the OP's training range, and an
+oscillating load of many cycles (a period a few tenths of a per cent off
+passes for a slower plant or a narrower band).
 
 Loops: PI control, a dead-band valve of 3 % OP, 1 s samples, set-point
 steps every 25-50 min, PV noise 1 % of the PV's swing (the noise floor of

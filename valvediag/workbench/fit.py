@@ -950,8 +950,9 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
     range); the stops are searched again after it, on their grid and
     further into the OP's tails (:data:`SAT_TAIL`), then on a fine line each
     (:func:`_stop_lines`), which removes a stop that does not pay for its
-    parameter; where that moved them, the simplex runs again from there. The load's period is searched on finer grids after
-    its stage and after the simplex (:func:`_fine_period`).
+    parameter; where that moved them, the simplex runs again from there.
+    The load's period is searched on finer grids after its stage and after
+    the simplex (:func:`_fine_period`).
     """
     # the grid's stages run from the cold start and from the warm one: from a
     # smaller model's optimum alone they can stay in its valley (a dead time
