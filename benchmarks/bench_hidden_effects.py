@@ -23,7 +23,10 @@ noise floor, how often an effect absent from the data was accepted, and
 how often a lag or dead time was accepted in place of the hidden other as
 one of a pair the record could not tell apart (the ladder names the pair:
 ``LadderStep.alternatives``; not counted as absent). Then the confusion: the
-effect ranked first against the hidden one.
+effect ranked first against the hidden one, and the evidence behind the
+accepted effects: the paired t of the held-out gain over the held-out
+segments and the fall of the BIC, the hidden effect's against the start
+and each absent effect's against the rung below.
 
 Targets (the workbench issue): hidden effect first in >= 90 % (lag and dead
 time: except where reported indistinguishable); error falls >= 30 % or ends
