@@ -19,6 +19,7 @@ from valvediag.workbench import (
     estimate_valve_size,
     forward_select,
     prepare_loop,
+    suggest_effects,
 )
 from valvediag.workbench.data import growing_swing
 from valvediag.workbench.diagnosis import event_average, valve_breakaways
@@ -451,6 +452,30 @@ def test_a_dead_band_behind_a_compressed_pv_is_sized_on_its_stored_samples():
     lines = model.fit(prepare_loop(read_back, op, 1.0))
     assert lines.params["DB"] < 0.95 * out["DB"]          # the bias the stored samples remove
     assert "stored samples" not in estimate_valve_size(pv, op, 1.0, "backlash")["reason"]
+
+
+def test_suggestions_on_a_pv_scored_at_its_stored_points_read_every_segment():
+    """Scored only at a compressed PV's stored points, some segments hold no
+    scored sample: the evidence skips them (a NaN had entered the saturation
+    evidence's means and the ranking of the worst segments, with warnings)."""
+    import warnings
+
+    from valvediag.synth.plant import swinging_door
+
+    sim = _sim(duration=3 * 3600, noise_std=0.025)
+    pv, op = sim.pv[600:], sim.op[600:]
+    t = np.arange(pv.size, dtype=float)
+    keep = np.flatnonzero(swinging_door(pv, 0.1 * 0.5 * np.ptp(pv), t=t))   # ~120 points
+    data = prepare_loop(np.interp(t, keep, pv[keep]), op, 1.0, pv_points="stored")
+    e = np.where(data.sample_set >= 0, 0.0, np.nan)
+    empty = [j for j, (a, b) in enumerate(zip(data.seg_start, data.seg_end))
+             if data.seg_set[j] >= 0 and not np.isfinite(e[a:b]).any()]
+    assert empty                                       # the case the test is about
+    base = LoopModel(("deadband",)).fit(data)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        sug = suggest_effects(base, ["saturation", "dead_time"])
+    assert all(np.isfinite(s.evidence.statistic) for s in sug.items)
 
 
 def test_too_few_stored_pv_samples_fall_back_to_every_sample():

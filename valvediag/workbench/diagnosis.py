@@ -13,6 +13,7 @@ MATLAB's ``resid`` (Ljung 1999), plus views specific to valves.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -329,7 +330,10 @@ def event_average(x, events, signs, before: int, after: int):
         nan = np.full(lags.size, np.nan)
         return lags, nan, nan, 0
     cnt = np.isfinite(M).sum(axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    # (a lag at which no event has a scored sample, as on a PV scored only
+    # at its stored points, is NaN: not a warning)
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
         mean = np.nanmean(M, axis=0) if M.shape[0] else np.full(lags.size, np.nan)
         sd = np.nanstd(M, axis=0, ddof=1) if M.shape[0] > 1 else np.full(lags.size, np.nan)
         se = sd / np.sqrt(np.maximum(cnt, 1))
@@ -447,7 +451,7 @@ def diagnose_fit(fit, *, n_worst: int = 5, max_lag=None) -> Diagnosis:
     swing = float(np.median(sw))
     seg_rms = []
     for j, (a, b, st) in enumerate(zip(d.seg_start, d.seg_end, d.seg_set)):
-        if st < 0:
+        if st < 0 or not np.isfinite(e[a:b]).any():      # (no scored sample)
             continue
         seg_rms.append((float(np.sqrt(np.nanmean(e[a:b] ** 2))), j))
     seg_rms.sort(reverse=True)

@@ -208,7 +208,7 @@ def effect_evidence(effect: str, fit: ModelFit, diag: Diagnosis | None = None) -
         near = (d.op <= lo + 0.03 * span) | (d.op >= hi - 0.03 * span)
         a2, b2 = [], []
         for a, b, st in zip(d.seg_start, d.seg_end, d.seg_set):
-            if st < 0:
+            if st < 0 or not np.isfinite(e[a:b]).any():      # (no scored sample)
                 continue
             ms = float(np.nanmean(e[a:b] ** 2))
             (a2 if near[a:b].mean() >= 0.2 else b2).append(ms)
