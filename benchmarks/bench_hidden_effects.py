@@ -32,12 +32,19 @@ Targets (the workbench issue): hidden effect first in >= 90 % (lag and dead
 time: except where reported indistinguishable); error falls >= 30 % or ends
 within 1.25 x the floor in >= 90 %; no absent effect accepted.
 
+``--record clean`` drops the PV's measurement noise (the floor is then
+NaN: the fall of the error decides), ``--record compressed`` stores the
+noisy PV by swinging-door compression at twice its noise and scores it at
+its stored points, as ``valvediag model ... --pv-points stored`` does (a PV
+read on a grid stays as it is read).
+
 Usage: python benchmarks/bench_hidden_effects.py [--workers W] [--seeds 2] [--hours 4.5]
-       [--effects saturation,quantisation]
+       [--effects saturation,quantisation] [--record noisy|clean|compressed]
 """
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import time
 from collections import Counter
@@ -91,9 +98,15 @@ PLANTS = {
 NOISE_PCT = 1.0
 
 
-def simulate_case(hidden: str, point: dict, plant: str, seed: int, hours: float):
+def simulate_case(hidden: str, point: dict, plant: str, seed: int, hours: float,
+                  record: str = "noisy"):
     """PV, OP, SP, the noise floor of one case, and where the valve stood
-    at a saturation stop (``{'low': mask, 'high': mask}``, else None)."""
+    at a saturation stop (``{'low': mask, 'high': mask}``, else None).
+
+    ``record``: the PV with its measurement noise (``'noisy'``), without it
+    (``'clean'``: the floor is then NaN), or with it and stored by
+    swinging-door compression at twice the noise, read back by straight
+    lines (``'compressed'``). A PV read on a grid is always read so."""
     from valvediag import simulate_loop
     from valvediag.synth.cases import alternating_steps
     from valvediag.workbench.data import growing_swing
@@ -144,6 +157,14 @@ def simulate_case(hidden: str, point: dict, plant: str, seed: int, hours: float)
         perfect = pv - quantised_mean(clean, step, 0.0, sigma)
         floor = float(np.sqrt(np.mean(perfect[n // 10:] ** 2)))
         return pv, op, kw["sp_profile"], floor, None
+    if record == "clean":
+        pv, sigma = clean, math.nan
+    elif record == "compressed":
+        from valvediag.synth.plant import swinging_door
+
+        t = np.arange(n, dtype=float)
+        keep = np.flatnonzero(swinging_door(pv, 2.0 * sigma, t=t))
+        pv = np.interp(t, keep, pv[keep])
     at_stop = None
     if hidden == "saturation":
         lo, hi = kw["valve_limits"]
@@ -162,13 +183,15 @@ def run_case(args):
         c = compare_heldout(a, b, ("a", "b"))
         return c.t if c.effects[0] == "a" else -c.t
 
-    hidden, k, point, plant, seed, hours = args
+    hidden, k, point, plant, seed, hours, record = args
     start, _ = GRID[hidden]
-    pv, op, sp, sigma, at_stop = simulate_case(hidden, point, plant, seed, hours)
+    pv, op, sp, sigma, at_stop = simulate_case(hidden, point, plant, seed, hours, record)
     out = dict(hidden=hidden, point=k, plant=plant, seed=seed)
     t0 = time.perf_counter()
+    # a compressed PV is scored at its stored points (`--pv-points stored`)
+    stored = record == "compressed" and hidden != "quantisation"
     try:
-        data = prepare_loop(pv, op, 1.0, sp=sp)
+        data = prepare_loop(pv, op, 1.0, sp=sp, pv_points="stored" if stored else "all")
     except WorkbenchDataError as exc:
         out.update(refused=str(exc), seconds=time.perf_counter() - t0)
         return out
@@ -212,12 +235,15 @@ def main():
     ap.add_argument("--effects", default=None,
                     help="comma-separated hidden effects to run (default all; a case's seed "
                          "does not depend on which run)")
+    ap.add_argument("--record", choices=("noisy", "clean", "compressed"), default="noisy",
+                    help="the PV with its noise (default), without it, or with it and "
+                         "stored by swinging-door compression (scored at its stored points)")
     args = ap.parse_args()
     effects = list(GRID) if args.effects is None else args.effects.split(",")
     unknown = [e for e in effects if e not in GRID]
     if unknown:
         ap.error(f"unknown effect(s) {', '.join(unknown)}; choose from {', '.join(GRID)}")
-    cases = [(h, k, p, plant, 1000 * s + 10 * k + j, args.hours)
+    cases = [(h, k, p, plant, 1000 * s + 10 * k + j, args.hours, args.record)
              for j, h in enumerate(GRID) if h in effects for k, p in enumerate(GRID[h][1])
              for plant in PLANTS for s in range(args.seeds)]
     t0 = time.perf_counter()
@@ -226,6 +252,7 @@ def main():
     wall = time.perf_counter() - t0
     print(f"hidden-effect benchmark: {len(res)} cases ({len(effects)} effects x 4 points x "
           f"{len(PLANTS)} plants x {args.seeds} seeds), {args.hours:g} h at 1 s, "
+          f"PV {args.record}, "
           f"{os.cpu_count()} cores, {args.workers} workers, {wall:.0f} s wall, "
           f"{sum(r['seconds'] for r in res):.0f} s of fitting")
     print(f"\n{'effect':12s} {'plant':16s} {'n':>3s} {'first':>6s} {'tie':>4s} {'fall med':>9s} "
