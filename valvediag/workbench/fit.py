@@ -831,12 +831,17 @@ def _refine(prob: Problem, theta: Theta, maxfev: int) -> tuple[Theta, float]:
     return theta, f0
 
 
+def _simplex_budget(names, maxfev: int | None) -> int:
+    """Evaluations of one simplex run: ``maxfev``, else 40 per parameter and 20."""
+    return maxfev or 40 * len(names) + 20
+
+
 def refine(prob: Problem, theta: Theta, maxfev: int | None = None) -> Theta:
     """Local refinement alone: Nelder-Mead on every continuous searched
     parameter from ``theta`` (no grid), for a problem whose optimum moved a
     little from ``theta``'s (``maxfev`` as in :func:`search`)."""
     names, _, _ = _continuous(prob, theta)
-    return _refine(prob, theta, maxfev or 40 * len(names) + 20)[0]
+    return _refine(prob, theta, _simplex_budget(names, maxfev))[0]
 
 
 def initial_theta(prob: Problem) -> Theta:
@@ -1012,7 +1017,7 @@ def search(prob: Problem, start: Theta | None = None, *, starts: int = 3,
     starts_ = _distinct_starts(pool_c, np.array(pool_s), starts) if pool_c else [theta]
     if start is not None and start not in starts_:
         starts_.append(prob_clip(prob, start))
-    fev = maxfev or 40 * len(names) + 20
+    fev = _simplex_budget(names, maxfev)
     best, fb = None, np.inf
     for s0 in starts_ if names else [theta]:
         th, f = _refine(prob, s0, fev)
