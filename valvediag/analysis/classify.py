@@ -24,6 +24,13 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    between its limits; on a self-regulating process (a flow, pressure,
    temperature), where the BI does not apply, the valve signature decides.
 
+Where the valve's position is recorded (``mv``), it is read against the OP
+directly (:func:`valvediag.analysis.travel.valve_travel`), with no process
+between the two: a position that follows the OP clears the valve whatever
+the PV looks like, and a sticky or loose valve read from the position is
+named on any loop (on an integrating loop the Backlash Index still names the
+kind where it reads one, and a position that disagrees is said).
+
 Every verdict carries a confidence in [0, 1] and its evidence.
 """
 from __future__ import annotations
@@ -38,10 +45,13 @@ from .oscillation import Oscillation, detect_oscillation
 from .quality import bridge_short_gaps, despike, white_noise_std
 from .signature import (KIND_SHARE, ValveSignature, cycle_transitions, horch_correlation,
                         stick_slip_events, valve_signature)
+from .travel import valve_travel
 
 __all__ = ["classify_loop", "LoopDiagnosis", "integrating_screen"]
 
 PROCESS_TYPES = ("integrating", "self-regulating", "unknown")
+#: Readings of the recorded valve position that name a valve fault.
+VALVE_FAULTS = ("stiction", "backlash", "undecided")
 
 MIN_SAMPLES = 32
 MIN_SAMPLES_PER_PERIOD = 8.0
@@ -415,7 +425,7 @@ def _margin(x, limit, scale):
 
 def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "unknown",
                   method: str = "robust", min_cycles: float = 3.0,
-                  pv_compressed: bool = False) -> LoopDiagnosis:
+                  pv_compressed: bool = False, mv=None) -> LoopDiagnosis:
     """Classify one control loop from its recorded PV and OP.
 
     Parameters
@@ -441,6 +451,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         (:class:`~valvediag.analysis.quality.DataQuality`'s ``compressed``):
         a level's kinks are not read from it (the straight lines drawn
         between stored points kink every bend).
+    mv : array_like, shape (n,), optional
+        Recorded valve position, same sampling [% of travel]; NaN where
+        missing. Read against the OP by
+        :func:`~valvediag.analysis.travel.valve_travel`.
 
     Returns
     -------
@@ -483,6 +497,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         sp = np.asarray(sp, dtype=float).ravel()
         if sp.size != pv.size:
             raise ValueError(f"pv has {pv.size} samples but sp has {sp.size}")
+    if mv is not None:
+        mv = np.asarray(mv, dtype=float).ravel()
+        if mv.size != pv.size:
+            raise ValueError(f"pv has {pv.size} samples but mv has {mv.size}")
     base = dict(process_type=process_type, sample_time=h)
     ev: dict = {"method": method, "samples": int(pv.size)}
 
@@ -492,6 +510,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         out.update(kw)
         return LoopDiagnosis(verdict=v, confidence=round(float(np.clip(conf, 0.05, 0.99)), 2),
                              reason=reason, evidence=ev, **base, **out)
+
+    def travel_verdict(**kw):
+        """The valve read from its recorded position: a sticky, loose or unnamed fault."""
+        conf = 0.5 if travel.verdict == "undecided" else 0.85
+        return verdict(travel.verdict, conf, f"valve position: {travel.reason}; method: "
+                       "recorded valve position against the OP (Kano et al. 2004)", **kw)
 
     # placeholders and spikes are masked, and short runs of missing or bad
     # samples bridged, before the longest gap-free stretch is taken: one
@@ -509,6 +533,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return verdict("insufficient-data", 0.95,
                        f"only {b - a} consecutive usable samples (need at least {MIN_SAMPLES})")
     x, u = pv[a:b], op[a:b]
+    travel = None
+    if mv is not None:
+        m, _ = bridge_short_gaps(despike(mv)[0])
+        if np.isfinite(m[a:b]).sum() >= MIN_SAMPLES:
+            travel = valve_travel(m[a:b], u, h)
+            ev["valve_travel"] = travel.as_dict()
     dead = dead_response(x, u, sp[a:b] if sp is not None else None)
     if dead:
         ev["dead_response"] = True
@@ -572,12 +602,20 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return None
 
     def slips_or(v, conf, reason):
-        """No limit cycle to judge: a sticky valve may still show itself by its slips."""
+        """No limit cycle to judge: a sticky valve may still show itself by its slips,
+        or by its recorded position."""
+        if travel is not None and travel.verdict in VALVE_FAULTS:
+            return travel_verdict(**common)
+        if travel is not None and travel.verdict == "linear":
+            # a valve that follows the OP makes no slips
+            return verdict(v, conf, f"{reason}; {travel.reason}", **common)
         return valve_events() or verdict(v, conf, reason, **common)
 
     if quiet is not None:
         return slips_or(*quiet)
     if spp < MIN_SAMPLES_PER_PERIOD:
+        if travel is not None and travel.verdict in VALVE_FAULTS:
+            return travel_verdict(**common)
         return verdict("insufficient-data", 0.8,
                        f"only {spp:.1f} samples per oscillation period; the waveform is lost "
                        f"(need at least {MIN_SAMPLES_PER_PERIOD:g})", **common)
@@ -607,6 +645,13 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        "the PV oscillates while the OP stands still: the oscillation comes from "
                        "outside the loop (manual mode, or a disturbance)", process_screen=pscreen,
                        shape=shape, **common)
+    if travel is not None and travel.verdict == "linear":
+        return verdict("linear-oscillation", c_data * proc_conf * 0.9,
+                       f"{travel.reason}: the oscillation is not the valve's; review the tuning "
+                       "or trace an external disturbance; method: recorded valve position "
+                       "against the OP", process_screen=pscreen, shape=shape, **common)
+    if travel is not None and travel.verdict in VALVE_FAULTS and selfreg:
+        return travel_verdict(process_screen=pscreen, shape=shape, **common)
     amp_cv = osc.amplitude_variation
     ev["amplitude_variation"] = amp_cv
     if np.isfinite(amp_cv) and amp_cv >= RESONANCE_VARIATION:
@@ -626,7 +671,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         # a valve the signature cannot read in the cycle may still show its events
         return d if d.verdict in ("stiction", "backlash", "undecided") else \
             (valve_events("self-regulating") or d)
-    if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR:
+    valve_faulty = travel is not None and travel.verdict in VALVE_FAULTS
+    if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR and not valve_faulty:
         conf = c_data * proc_conf * (0.5 + 0.5 * (1.0 - shape.pv_distortion / DIST_LINEAR))
         return verdict("linear-oscillation", conf,
                        f"a sinusoidal oscillation (harmonic distortion {shape.pv_distortion:.3f}) "
@@ -642,6 +688,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
               theta_middle_mean=finite_mean(bres.theta_middle), rounding=bres.rounding,
               bi_thresholds=list(bres.thresholds))
     if bres.verdict == "insufficient-data":
+        if valve_faulty:
+            return travel_verdict(process_screen=pscreen, shape=shape, backlash=bres, **common)
         return verdict("insufficient-data", 0.6, f"the Backlash Index could not be measured: {bres.reason}",
                        process_screen=pscreen, shape=shape, backlash=bres, **common)
     lo, hi = bres.thresholds
@@ -654,7 +702,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         sig = valve_signature(x, u, h, process="integrating", period=osc.period)
         ev["signature"] = sig.as_dict()
     curved = np.isfinite(sev["ramp_curvature"]) and sev["ramp_curvature"] >= RAMP_CURVATURE_MAX
-    if follows_op(sig, osc.period) or (curved and sig.verdict == "linear"):
+    if not valve_faulty and (follows_op(sig, osc.period) or (curved and sig.verdict == "linear")):
         why = (f"the valve position implied by the PV slope follows the OP (held-out R2 "
                f"{sig.r2_linear:.2f} with a linear valve; a sticky or loose valve removes only "
                f"{max(0.0, 100 * sig.gain):.0f}% of the rest)")
@@ -694,6 +742,18 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         reason += (f"; but the turns are also those of a sharp turn behind a {turns.lag:.3g} s "
                    f"lag (BI {turns.bi:.2f} with the lag fitted): if the loop has such a lag (a "
                    "slow sensor or positioner, a mixing volume) the valve may stick instead")
+    if valve_faulty:
+        if bres_verdict not in ("stiction", "backlash") and travel.verdict != "undecided":
+            # the index cannot name the kind: the recorded position does
+            bres_verdict, conf = travel.verdict, max(conf, 0.6)
+            reason += f"; the recorded valve position names it: {travel.reason}"
+        elif travel.verdict != bres_verdict:
+            conf *= 0.6
+            reason += (f"; but the recorded valve position reads {travel.verdict}: "
+                       f"{travel.reason}")
+        else:
+            conf = max(conf, 0.85)
+            reason += f"; the recorded valve position agrees: {travel.reason}"
     if pscreen == "unknown" and process_type == "unknown":
         reason += "; the process type is not known, the loop is assumed integrating"
     return verdict(bres_verdict, conf, reason, process_screen=pscreen, bi=bres.bi, shape=shape,

@@ -41,7 +41,7 @@ import polars as pl
 from .align import AlignedLoop, contiguous_segments, to_epoch_us
 
 __all__ = ["DataQuality", "quality_metrics", "white_noise_std", "stored_points", "despike",
-           "bridge_short_gaps", "bridge_short_breaks",
+           "bridge_short_gaps", "bridge_short_breaks", "most_active_window",
            "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
 
 #: Mode texts meaning "the controller is not closing the loop".
@@ -430,6 +430,36 @@ def white_noise_std(x) -> float:
     w1 = 1.0 - w2
     r = (v[1:-1] - (w1 * v[:-2] + w2 * v[2:])) / np.sqrt(1.0 + w1 ** 2 + w2 ** 2)
     return float(1.4826 * np.median(np.abs(r - np.median(r))))
+
+
+def most_active_window(x, m: int) -> int:
+    """Start of the ``m``-sample window in which ``x`` travels furthest.
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+        A signal, usually the controller output [its unit].
+    m : int
+        Window length [samples].
+
+    Returns
+    -------
+    int
+        First sample of the window; 0 when ``n <= m``.
+
+    Notes
+    -----
+    Windows start every quarter window (and at ``n - m``); the travel is the
+    window's range. A long record is cut to the part that says most about
+    the valve this way, at its native sampling.
+    """
+    x = np.asarray(x, dtype=float)
+    n = x.size
+    if n <= m:
+        return 0
+    starts = np.unique(np.r_[np.arange(0, n - m, max(1, m // 4)), n - m])
+    ranges = [np.ptp(x[s:s + m]) for s in starts]
+    return int(starts[int(np.argmax(ranges))])
 
 
 def stored_points(x) -> np.ndarray:

@@ -58,7 +58,7 @@ import numpy as np
 from scipy.signal import find_peaks, lfilter, oaconvolve
 
 from ..models.valves import apply_valve
-from .quality import stored_points, white_noise_std
+from .quality import most_active_window, stored_points, white_noise_std
 
 __all__ = ["ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_events",
            "horch_correlation", "cycle_transitions", "loop_sense", "SIGNATURE_LIMITS"]
@@ -215,16 +215,6 @@ class ValveSignature:
         ax.set_title(f"S {self.S:.2f}, J {self.J:.2f}, gain {self.gain:.2f}")
         ax.legend(loc="best", fontsize=8)
         return ax
-
-
-def _most_active(op: np.ndarray, m: int) -> int:
-    """Start of the ``m``-sample window in which the OP travels furthest."""
-    n = op.size
-    if n <= m:
-        return 0
-    starts = np.unique(np.r_[np.arange(0, n - m, max(1, m // 4)), n - m])
-    ranges = [np.ptp(op[s:s + m]) for s in starts]
-    return int(starts[int(np.argmax(ranges))])
 
 
 def _slope_window(pv: np.ndarray, h: float, noise: float, period: float = math.nan) -> int:
@@ -413,7 +403,7 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     if pv.size < 64:
         return ValveSignature(verdict="unknown", reason=f"only {pv.size} samples (need 64)",
                               samples=int(pv.size), **base)
-    start = _most_active(op, max_samples)
+    start = most_active_window(op, max_samples)
     pv = pv[start:start + max_samples]
     op = op[start:start + max_samples]
     n = pv.size

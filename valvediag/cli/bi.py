@@ -12,8 +12,11 @@ Classify one or more single-loop CSV files (columns timestamp,pv,op[,sp,mv];
 timestamp ISO 8601 or seconds). For each file valvediag finds the oscillation,
 checks that it is regular and caused by a valve nonlinearity, and computes the
 Backlash Index (BI): stiction (sharp peaks), backlash (rounded peaks after
-straight ramps) or undecided. A file that cannot be analysed gets the verdict
-insufficient-data with the reason and does not stop the others.
+straight ramps) or undecided. Where the file has a valve position column (mv),
+the position is read against the OP as well: a position that follows the OP
+clears the valve, one that lags and jumps names a sticky valve. A file that
+cannot be analysed gets the verdict insufficient-data with the reason and does
+not stop the others.
 
 exit codes: 0 when at least one file was read, 2 when none could be (each
 file's reason is printed).
@@ -33,7 +36,7 @@ def register(sub):
                         "data test)")
     p.add_argument("--min-cycles", type=float, default=3.0,
                    help="fewest oscillation cycles for a verdict on the valve (default 3)")
-    for role in ("timestamp", "pv", "op", "sp"):
+    for role in ("timestamp", "pv", "op", "sp", "mv"):
         p.add_argument(f"--{role}-column", metavar="NAME",
                        help=f"name of the {role} column if it is not '{role}'")
     p.add_argument("--json", action="store_true", help="print one JSON list, an object per file")
@@ -54,7 +57,7 @@ def _classify(path, method, process_type, min_cycles, columns) -> tuple[dict, bo
         return {"file": str(path), "verdict": "insufficient-data", "bi": None, "cycles": 0,
                 "period_s": None, "confidence": None, "reason": str(exc)}, False
     d = classify_loop(rec.pv, rec.op, rec.sp, sample_time=rec.sample_time,
-                      process_type=process_type, method=method, min_cycles=min_cycles)
+                      process_type=process_type, method=method, min_cycles=min_cycles, mv=rec.mv)
     reason = d.reason
     if meta["non_numeric"]:
         reason += "; non-numeric values ignored: " + ", ".join(f"{k} {v}" for k, v in meta["non_numeric"].items())
@@ -63,7 +66,7 @@ def _classify(path, method, process_type, min_cycles, columns) -> tuple[dict, bo
 
 
 def run(args) -> int:
-    columns = {r: getattr(args, f"{r}_column") for r in ("timestamp", "pv", "op", "sp")
+    columns = {r: getattr(args, f"{r}_column") for r in ("timestamp", "pv", "op", "sp", "mv")
                if getattr(args, f"{r}_column")}
     done = [_classify(f, args.method, args.process_type, args.min_cycles, columns or None)
             for f in args.files]

@@ -37,6 +37,7 @@ redrawn until the record shows its class (enough cycles or events, at least
 from __future__ import annotations
 
 import math
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -88,6 +89,12 @@ class SynthLoop:
         [s]
     params : dict
         What was simulated (valve, tuning, disturbance, noise, storage).
+    mv : numpy.ndarray or None
+        The valve's position as a positioner would report it [% of travel]:
+        the simulated position with 0.1-0.5 % white noise, stored like the
+        OP when the record is compressed. None where no valve was simulated
+        (``dead-response``). Drawn from its own stream, so the other signals
+        are the same with or without it.
     """
 
     name: str
@@ -99,6 +106,7 @@ class SynthLoop:
     sp: np.ndarray = field(repr=False)
     sample_time: float
     params: dict = field(default_factory=dict)
+    mv: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def duration_s(self) -> float:
@@ -269,14 +277,14 @@ def draw_loop(klass: str, rng: np.random.Generator, *, name: str = "", tries: in
     for _ in range(tries):
         out = _try(klass, rng)
         if out is not None:
-            pv, op, sp, h, params = out
+            pv, op, sp, h, params, mv = out
             return SynthLoop(name=name or klass, klass=klass, truth=truth, process_type=ptype,
-                             pv=pv, op=op, sp=sp, sample_time=h, params=params)
+                             pv=pv, op=op, sp=sp, sample_time=h, params=params, mv=mv)
     raise ValueError(f"{klass}: no draw in {tries} tries showed the class")
 
 
 def _try(klass: str, rng: np.random.Generator):
-    """One draw: (pv, op, sp, h, params) or None when the record does not show the class."""
+    """One draw: (pv, op, sp, h, params, mv) or None when the record does not show the class."""
     h = float(rng.choice((1.0, 2.0, 5.0, 10.0)))
     length = float(rng.choice((1.0, 2.0, 4.0))) * 3600 if rng.random() < 0.5 else _DAY
     compressed = bool(rng.random() < 0.3)
@@ -371,6 +379,7 @@ def _try(klass: str, rng: np.random.Generator):
                         noise_std=sigma, valve_noise_band=band, seed=int(rng.integers(1 << 31)))
     pv, op, sp = run.pv[k0:], run.op[k0:], run.sp[k0:]
     pv, op, sp = _record(pv, op, sp, rng, compressed, sigma)
+    mv = _position_record(run.mv[k0::2][:pv.size], pv, compressed)
     if klass == "level-stiction-events":
         # of the valve's slips, those the level's record shows: at its samples,
         # and through its compression (a stored point's error spreads over the
@@ -413,7 +422,22 @@ def _try(klass: str, rng: np.random.Generator):
     elif klass.endswith("healthy"):
         if np.isfinite(period) and cycles >= 4 and regularity > 1.0:
             return None
-    return pv, op, sp, h, p
+    return pv, op, sp, h, p, mv
+
+
+def _position_record(mv: np.ndarray, pv: np.ndarray, compressed: bool) -> np.ndarray:
+    """The valve position as a positioner reports it: 0.1-0.5 % white noise, and
+    the OP's exception storage where the record is compressed.
+
+    Its own random stream is seeded from the recorded PV, so that drawing it
+    leaves the draws of every other signal as they were."""
+    g = np.random.default_rng(zlib.crc32(np.ascontiguousarray(pv).tobytes()))
+    out = mv + g.normal(0.0, g.uniform(0.1, 0.5), mv.size)
+    if compressed:
+        t = np.arange(out.size, dtype=float)
+        keep = np.flatnonzero(exception_deadband(out, g.uniform(0.05, 0.2)))
+        out = np.interp(t, keep, out[keep])
+    return out
 
 
 def _dead_response(rng, h, length, compressed, noise_pct, p):
@@ -435,7 +459,7 @@ def _dead_response(rng, h, length, compressed, noise_pct, p):
                          0.05 if noisy else 0.0)
     p.update(stuck_level=level, kc=kc, ti_s=ti, valve="unknown (no response)",
              period_s=math.nan, cycles=0.0)
-    return pv, op, sp, h, p
+    return pv, op, sp, h, p, None
 
 
 def loop_set(n_per_class: int, seed: int, classes=None) -> list[SynthLoop]:

@@ -1,0 +1,213 @@
+"""Valve travel: the recorded valve position against the OP (hand-built traces and loops)."""
+import numpy as np
+import pytest
+
+from valvediag import classify_loop, simulate_loop
+from valvediag.analysis.travel import TRAVEL_LIMITS, valve_travel
+from valvediag.models.valves import apply_valve
+
+H = 1.0
+
+
+def _op(n=6000, seed=0):
+    """An OP that reverses at wandering points: a triangle over a slow sine, with noise."""
+    t = np.arange(n) * H
+    rng = np.random.default_rng(seed)
+    tri = 2 / np.pi * np.arcsin(np.sin(2 * np.pi * t / 400.0))
+    return 50.0 + 4.0 * tri + 3.0 * np.sin(2 * np.pi * t / 1700.0) + rng.normal(0, 0.02, n)
+
+
+def _sticky(op, S, J):
+    """Kano's valve behind an actuator that does not reverse on the OP's noise."""
+    return apply_valve("kano", op, S=S, J=J, noise_band=0.12)
+
+
+def _position(valve, noise=0.1, seed=1):
+    """A positioner's report of the valve: its position plus white noise."""
+    return valve + np.random.default_rng(seed).normal(0, noise, valve.size)
+
+
+def test_a_parallelogram_with_vertical_sides_is_a_sticky_valve():
+    op = _op()
+    mv = _position(_sticky(op, 3.0, 2.0))
+    t = valve_travel(mv, op, H)
+    assert t.verdict == "stiction", t.reason
+    # every slip of 2 (20 noise sd) is seen, and none is expected from noise
+    assert t.toward >= 20 and t.jumps_expected < 0.1 and t.toward >= 0.9 * t.jumps
+    assert t.jump == pytest.approx(2.0, rel=0.15)
+    assert t.S == pytest.approx(3.0, rel=0.2)
+    # the grid holds neither S = 3 nor J/S = 2/3 exactly: the fit is close, not exact
+    assert t.ratio < 0.5 and t.linear_over_noise > 5
+
+
+def test_a_parallelogram_with_sloped_sides_is_a_dead_band():
+    op = _op()
+    mv = _position(apply_valve("backlash", op, DB=3.0))
+    t = valve_travel(mv, op, H)
+    assert t.verdict == "backlash", t.reason
+    assert t.toward == 0
+    assert t.S == pytest.approx(3.0, rel=0.2) and t.J == 0.0
+
+
+def _staircase(op, band):
+    """A valve that stands until the OP is ``band`` away, then jumps to it (stick-slip)."""
+    out = np.empty_like(op)
+    out[0] = op[0]
+    for k in range(1, op.size):
+        out[k] = op[k] if abs(op[k] - out[k - 1]) > band else out[k - 1]
+    return out
+
+
+def test_a_staircase_of_slips_on_a_creeping_op_is_a_sticky_valve():
+    # the OP creeps one way for the whole record (no reversal): the valve stands
+    # and jumps to the OP each time the OP has moved 2 on
+    n = 4000
+    op = 40.0 + 0.005 * np.arange(n) + np.random.default_rng(3).normal(0, 0.02, n)
+    mv = _position(_staircase(op, 2.0))
+    t = valve_travel(mv, op, H)
+    assert t.verdict == "stiction", t.reason
+    assert t.toward >= 8
+
+
+@pytest.mark.parametrize("delay", [0, 1])
+def test_a_valve_that_follows_the_op_is_linear(delay):
+    op = _op()
+    valve = 0.9 * op + 4.0
+    if delay:
+        valve = np.r_[valve[:1], valve[:-1]]
+    t = valve_travel(_position(valve), op, H)
+    assert t.verdict == "linear", t.reason
+    assert t.linear_over_noise < TRAVEL_LIMITS["linear_over_noise"]
+    assert t.toward == 0
+
+
+def test_a_position_that_stands_still_while_the_op_travels_is_no_response():
+    op = _op() * 4.0 - 150.0                        # travels about 50 %
+    t = valve_travel(_position(np.full(op.size, 30.0)), op, H)
+    assert t.verdict == "no-response"
+    assert "stuck fast" in t.reason
+
+
+def test_an_op_that_hardly_moves_tells_nothing():
+    n = 3000
+    op = 50.0 + np.random.default_rng(4).normal(0, 0.05, n)
+    t = valve_travel(_position(op, noise=0.3), op, H)
+    assert t.verdict == "unknown"
+
+
+def test_a_gap_in_the_position_reads_the_longest_stretch():
+    op = _op()
+    mv = _position(_sticky(op, 3.0, 2.0))
+    mv[2000:2100] = np.nan
+    t = valve_travel(mv, op, H)
+    assert t.verdict == "stiction" and t.samples == op.size - 2100
+
+
+def test_unequal_lengths_are_refused():
+    with pytest.raises(ValueError, match="mv has 10 samples but op has 11"):
+        valve_travel(np.zeros(10), np.zeros(11), 1.0)
+    with pytest.raises(ValueError, match="sample_time"):
+        valve_travel(np.zeros(10), np.zeros(10), 0.0)
+
+
+def test_the_plot_draws_the_position_against_the_op():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    op = _op(2000)
+    t = valve_travel(_position(_sticky(op, 3.0, 2.0)), op, H)
+    ax = t.plot()
+    assert ax.get_xlabel() == "OP" and len(ax.lines) >= 1 + t.toward
+    d = t.as_dict()
+    assert d["verdict"] == "stiction" and isinstance(d["jumps"], int)
+
+
+def _flow_loop(valve, valve_params, load_profile, n=7200, seed=5):
+    """A PI flow loop (self-regulating, tau 10 s) recorded at 1 s, with its valve position."""
+    run = simulate_loop(kc=0.4, ti=12.0, sample_time=H, n_samples=n, process="self-regulating",
+                        tau=10.0, sp=50.0, sp_step=1.0, sp_step_time=60.0, load=0.0,
+                        valve=valve, valve_params=valve_params, load_profile=load_profile,
+                        noise_std=0.05, seed=seed,
+                        valve_noise_band=0.3 if valve == "kano" else 0.0)
+    mv = _position(run.mv, noise=0.2, seed=seed)
+    return run.pv, run.op, run.sp, mv
+
+
+def test_a_triangular_load_on_a_flow_loop_is_not_the_valve_when_its_position_is_recorded():
+    # a PI loop turns a triangular load into a square PV and a triangular OP:
+    # the picture of a sticky valve's limit cycle. The position follows the OP.
+    n = 7200
+    t = np.arange(n) * H
+    load = 4.0 * 2 / np.pi * np.arcsin(np.sin(2 * np.pi * t / 300.0))
+    pv, op, sp, mv = _flow_loop("linear", None, load, n)
+    d = classify_loop(pv, op, sp, sample_time=H, process_type="self-regulating", mv=mv)
+    assert d.verdict == "linear-oscillation", d.reason
+    assert "valve position follows the OP" in d.reason
+    assert d.evidence["valve_travel"]["verdict"] == "linear"
+
+
+def test_a_sticky_flow_valve_in_a_limit_cycle_is_named_from_its_position():
+    pv, op, sp, mv = _flow_loop("kano", {"S": 3.0, "J": 2.5}, None)
+    d = classify_loop(pv, op, sp, sample_time=H, process_type="self-regulating", mv=mv)
+    assert d.verdict == "stiction", d.reason
+    assert "recorded valve position" in d.reason
+
+
+def test_a_sticky_valve_without_a_limit_cycle_is_named_from_its_position():
+    # slow integral action and a wandering load: the OP creeps, the valve sticks
+    # at the OP's reversals and slips (five times in 4 h; no cycle for the
+    # oscillation detector)
+    n = 14400
+    rng = np.random.default_rng(8)
+    pts = np.cumsum(rng.normal(0, 4.0, n // 600 + 2))
+    load = np.interp(np.arange(n), np.arange(pts.size) * 600, pts - pts[0])
+    run = simulate_loop(kc=0.2, ti=120.0, sample_time=H, n_samples=n, process="self-regulating",
+                        tau=8.0, sp=50.0, valve="kano", valve_params={"S": 2.0, "J": 1.5},
+                        load_profile=load, noise_std=0.05, seed=9, valve_noise_band=0.3)
+    mv = _position(run.mv, noise=0.15, seed=9)
+    d = classify_loop(run.pv, run.op, run.sp, sample_time=H, process_type="self-regulating",
+                      mv=mv)
+    assert d.verdict == "stiction", d.reason
+    assert d.evidence["valve_travel"]["toward"] >= 2
+
+
+def test_a_position_of_the_wrong_length_is_refused():
+    with pytest.raises(ValueError, match="mv"):
+        classify_loop(np.zeros(100), np.zeros(100), sample_time=1.0, mv=np.zeros(99))
+
+
+def test_the_scan_reads_the_registrys_valve_position_tag():
+    import datetime as dt
+
+    import polars as pl
+
+    from valvediag.io.registry import LoopSpec
+    from valvediag.scan import LoopJob, ScanConfig, analyse_loop
+
+    n = 7200
+    t = np.arange(n) * H
+    load = 4.0 * 2 / np.pi * np.arcsin(np.sin(2 * np.pi * t / 300.0))
+    pv, op, sp, mv = _flow_loop("linear", None, load, n)
+    t0 = dt.datetime(2026, 6, 1, tzinfo=dt.timezone.utc)
+    ts = pl.Series([t0 + dt.timedelta(seconds=k) for k in range(n)],
+                   dtype=pl.Datetime("us", "UTC"))
+
+    def frame(x):
+        return pl.DataFrame({"ts": ts, "value": pl.Series(x, dtype=pl.Float64),
+                             "status": pl.Series([None] * n, dtype=pl.String)})
+
+    end = t0 + dt.timedelta(seconds=n)
+    verdicts = {}
+    for tag in (None, "FV1.POS"):
+        spec = LoopSpec(loop="FIC1", pv_tag="FI1", op_tag="FC1", sp_tag="FS1", mv_tag=tag,
+                        process_type="self-regulating", span=100.0)
+        frames = {"pv": frame(pv), "op": frame(op), "sp": frame(sp)}
+        if tag:
+            frames["mv"] = frame(mv)
+        job = LoopJob(spec=spec, start=end - dt.timedelta(hours=24), end=end, problems=())
+        r = analyse_loop(job, frames, ScanConfig(window_hours=24))
+        verdicts[tag] = r
+    # the PV and OP alone show a sticky valve's picture; the position clears the valve
+    assert verdicts[None].verdict == "stiction"
+    assert verdicts["FV1.POS"].verdict == "linear-oscillation", verdicts["FV1.POS"].reason
+    assert verdicts["FV1.POS"].evidence["valve_travel"]["verdict"] == "linear"
