@@ -211,3 +211,23 @@ def test_the_scan_reads_the_registrys_valve_position_tag():
     assert verdicts[None].verdict == "stiction"
     assert verdicts["FV1.POS"].verdict == "linear-oscillation", verdicts["FV1.POS"].reason
     assert verdicts["FV1.POS"].evidence["valve_travel"]["verdict"] == "linear"
+
+
+def test_the_report_says_what_the_reported_position_showed():
+    from types import SimpleNamespace
+
+    from valvediag.report.explain import explain
+
+    def result(verdict, travel):
+        return SimpleNamespace(verdict=verdict, bi=float("nan"), reason="", description="",
+                               evidence={"valve_travel": travel}, size=None, needs_action=False,
+                               quality={}, amplitude_pct_span=float("nan"),
+                               amplitude=float("nan"), period_s=float("nan"), unit="%")
+
+    text = " ".join(explain(result("stiction", {"verdict": "stiction", "toward": 12})))
+    assert "catches up in jumps (12 of them)" in text
+    text = " ".join(explain(result("linear-oscillation", {"verdict": "linear"})))
+    assert "its valve follows the controller" in text and "smoothly, like a sine" not in text
+    # a position that does not back the verdict is not quoted as if it did
+    text = " ".join(explain(result("backlash", {"verdict": "stiction", "toward": 3})))
+    assert "reports its own position" not in text

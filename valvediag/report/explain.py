@@ -181,7 +181,34 @@ def _what(r) -> str:
     return "measurement" if not r.description else f"measurement ({r.description})"
 
 
+def _position(r) -> str | None:
+    """What the valve's reported position showed, where it backs the verdict."""
+    vt = (r.evidence or {}).get("valve_travel") or {}
+    v = vt.get("verdict")
+    if v == "stiction" and r.verdict == "stiction":
+        return (f"The valve reports its own position: it stands still while the controller "
+                f"output moves, then catches up in jumps ({vt.get('toward')} of them).")
+    if v == "backlash" and r.verdict == "backlash":
+        return ("The valve reports its own position: after each reversal of the controller "
+                "output it stands still, then follows without a jump.")
+    if v == "undecided" and r.verdict == "undecided":
+        return ("The valve reports its own position: it lags the controller output and "
+                "jumps a few times, too few to tell sticking from play.")
+    if v == "linear" and r.verdict in ("linear-oscillation", "no-oscillation"):
+        return ("The valve reports its own position, and it follows the controller output: "
+                "the valve is not what makes the loop swing.")
+    return None
+
+
 def _how(r) -> str | None:
+    how = _how_shape(r)
+    pos = _position(r)
+    if pos is None:
+        return how
+    return f"{how} {pos}" if how else f"How we know: {pos[0].lower()}{pos[1:]}"
+
+
+def _how_shape(r) -> str | None:
     ev = r.evidence or {}
     lo, hi = (ev.get("bi_thresholds") or [math.nan, math.nan])[:2]
     if r.verdict == "stiction" and _finite(r.bi):
@@ -224,6 +251,10 @@ def _opening(r) -> str:
         return ("The control valve does not follow the controller in proportion, but the "
                 "data cannot tell whether it sticks or has play.")
     if v == "linear-oscillation":
+        if ((r.evidence or {}).get("valve_travel") or {}).get("verdict") == "linear":
+            return ("The loop swings regularly, but its valve follows the controller, as its "
+                    "reported position shows. The likely cause is the controller tuning or a "
+                    "disturbance coming from elsewhere in the plant, not this valve.")
         return ("The loop swings regularly, but smoothly, like a sine wave: a sticky or loose "
                 "valve would distort the swing. The likely cause is the controller tuning or "
                 "a disturbance coming from elsewhere in the plant, not this valve.")
