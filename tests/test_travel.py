@@ -231,3 +231,30 @@ def test_the_report_says_what_the_reported_position_showed():
     # a position that does not back the verdict is not quoted as if it did
     text = " ".join(explain(result("backlash", {"verdict": "stiction", "toward": 3})))
     assert "reports its own position" not in text
+
+
+def test_spikes_of_the_reading_are_not_slips():
+    # a valve that follows the OP, read with single-sample spikes: a spike
+    # comes back at once, a slip stays
+    op = _op()
+    mv = _position(0.9 * op + 4.0)
+    at = np.arange(300, op.size, 500)
+    mv[at] += np.where(np.arange(at.size) % 2, 0.6, -0.6)
+    t = valve_travel(mv, op, H)
+    assert t.jumps == 0
+    assert t.verdict not in ("stiction", "backlash", "undecided"), t.reason
+
+
+def test_a_step_that_a_compressed_op_hides_is_not_a_slip():
+    # a linear valve whose OP the historian kept every 200th sample (a
+    # swinging door on a slow OP): between stored points the OP is a straight
+    # line and the position, which follows the real OP, steps off it; a jump
+    # must exceed what the stored line can hide
+    op = _op(6000)
+    mv = _position(op, noise=0.01)
+    t_idx = np.arange(op.size)
+    kept = np.r_[t_idx[::200], op.size - 1]
+    op_stored = np.interp(t_idx, kept, op[kept])
+    t = valve_travel(mv, op_stored, H)
+    assert t.toward == 0, t.reason
+    assert t.verdict not in ("stiction", "backlash")

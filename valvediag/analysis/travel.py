@@ -43,7 +43,7 @@ import numpy as np
 from scipy.stats import norm, poisson
 
 from ..models.valves import apply_valve
-from .quality import most_active_window, white_noise_std
+from .quality import most_active_window, stored_points, white_noise_std
 
 __all__ = ["ValveTravel", "valve_travel", "TRAVEL_LIMITS"]
 
@@ -74,6 +74,9 @@ TRAVEL_LIMITS = {
     "op_bands": 4.0,
     # an OP range [OP unit] over which a position that stands still is a dead valve
     "dead_op_range": 10.0,
+    # a signal that keeps fewer of its samples than this was drawn back between stored
+    # points, and a jump must exceed twice what that can hide (see valve_travel)
+    "stored_min": 0.5,
 }
 #: Most samples read (the window in which the OP travels furthest).
 MAX_SAMPLES = 20_000
@@ -248,7 +251,11 @@ def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) 
     one and the ratio of the two signals' 1-99 % ranges), and at least
     ``jump_over_op`` times the OP's move over that sample and the one before
     (a slip is vertical in the position-OP plot; a positioner that follows
-    may answer the OP a sample late). The noise alone makes ``2 n Phi(-jump_z)`` of them in
+    may answer the OP a sample late), and the position must have stood
+    (within half the jump over the two samples before it) and must stay (at
+    least half the jump away from where it started one and two samples
+    later): a valve that slipped had stuck and stays; a spike of the
+    reading comes back. The noise alone makes ``2 n Phi(-jump_z)`` of them in
     ``n`` samples, half of them towards the OP. A sticky valve needs
     ``jumps_min`` jumps towards the OP whose count is improbable under noise
     (Poisson tail below ``jump_p``), three quarters of all jumps; fewer than
@@ -266,13 +273,24 @@ def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) 
     ``'backlash'`` or ``'undecided'``; ``'unknown'`` where nothing explains
     the position.
 
+    A record drawn back by straight lines between stored points (fewer than
+    ``stored_min`` of its samples stored) hides how the signal moved between
+    them: the true signal stood or crept within the compression, whose
+    deviation the steps between consecutive stored values bound (an
+    exception dead band stores a value once the signal has left the last one
+    by more than the band). A jump must then also exceed twice the 90th
+    percentile of those steps (of the OP through the gain, and of the
+    position): a step of the position that the OP's stored line hides is a
+    valve following a move nobody stored, not a slip.
+
     It assumes the position is the valve's own (not a second controller's
     set point) and that the OP and the position are sampled together. It
     fails where:
 
-    * the slip jump is smaller than about four noise standard deviations of
-      the position and few slips are recorded: a sticky valve with a small
-      ``J`` then reads as ``'backlash'`` (which it nearly is, ``J/S`` small);
+    * the slip jump is smaller than about six noise standard deviations of
+      the position (``jump_z`` of the difference of two samples) and few
+      slips are recorded: a sticky valve with a small ``J`` then reads as
+      ``'backlash'`` (which it nearly is, ``J/S`` small);
     * the record is sampled more slowly than the controller runs: a slip
       happens at the OP's turn, which the record straddles, so the fitted
       valve model misses slips and its ``J`` comes out low (the jump count,
@@ -340,7 +358,7 @@ def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) 
     # linear fit needs a position that moves beyond its noise
     fit = None
     if w_hi - w_lo > 6.0 * noise and w_range > 0:
-        fit = _valve_fit(w_mv, w_op, band, w_range,
+        fit = _valve_fit(w_mv, w_op, band, w_range, noise,
                          valves=w_range > lim["op_bands"] * band)
     # the jumps, on the whole record; the valve's gain from the ranges is low by
     # the band over the OP's range, the fitted one is not: the larger is used,
@@ -387,7 +405,7 @@ def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) 
         return ValveTravel(verdict="unknown",
                            reason=f"the valve position departs from the OP in a way no valve "
                                   f"model explains (a positioner's lag, a position of another "
-                                  f"loop's valve?): {figures}", **fit, **jumps, **base)
+                                  f"loop's valve?): {figures}; {count}", **fit, **jumps, **base)
     if (jumps["toward"] < lim["jumps_min"] or p >= lim["noise_p"]) and not strong:
         # a single jump just beyond the noise is no pattern: noise makes one now and then
         reason = (f"the valve position lags the OP and follows it without a jump ({count}): a "
@@ -398,12 +416,12 @@ def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) 
     return ValveTravel(verdict="undecided", reason=reason, **fit, **jumps, **base)
 
 
-def _valve_fit(mv: np.ndarray, op: np.ndarray, band: float, op_range: float, *,
+def _valve_fit(mv: np.ndarray, op: np.ndarray, band: float, op_range: float, noise: float, *,
                valves: bool = True) -> dict:
     """The linear fit and the best valve model of ``mv`` from ``op`` (see :func:`valve_travel`);
-    the linear fit alone when ``valves`` is False (``ratio`` 1, ``S`` and ``J`` NaN)."""
+    the linear fit alone when ``valves`` is False (``ratio`` 1, ``S`` and ``J`` NaN).
+    ``noise``: the position's white noise, against which the linear fit's error is read."""
     n = mv.size
-    noise = max(white_noise_std(mv), 1e-3 * float(np.ptp(mv)), 1e-12)
     burn = max(2, n // 20)
     lin = [_fit_rms(mv, _delayed(op, d)[None, :], burn) for d in (0, 1)]
     r_lin, b_lin = min(lin, key=lambda rb: rb[0][0])
@@ -448,6 +466,16 @@ def _valve_fit(mv: np.ndarray, op: np.ndarray, band: float, op_range: float, *,
                 linear_over_noise=rms_lin / noise, S=S_best, J=J_best, gain=gain)
 
 
+def _hidden(x: np.ndarray) -> float:
+    """How far a compressed record may hide the signal's moves: 0 for a record
+    that keeps most of its samples, else the 90th percentile of the steps
+    between consecutive stored points."""
+    kept = stored_points(x)
+    if kept.size >= TRAVEL_LIMITS["stored_min"] * x.size:
+        return 0.0
+    return float(np.percentile(np.abs(np.diff(x[kept])), 90)) if kept.size > 1 else math.inf
+
+
 def _jumps(mv: np.ndarray, op: np.ndarray, noise: float, gain: float) -> dict:
     """The position's own jumps towards the OP (see :func:`valve_travel`); ``gain`` is
     the position per unit OP, with its sign."""
@@ -463,8 +491,21 @@ def _jumps(mv: np.ndarray, op: np.ndarray, noise: float, gain: float) -> dict:
     # OP's move a sample late)
     op_move = np.abs(do)
     op_move[1:] = np.maximum(op_move[1:], np.abs(do[:-1]))
-    is_jump = ((np.abs(own) > lim["jump_z"] * math.sqrt(2.0) * noise)
-               & (np.abs(dm) >= lim["jump_over_op"] * abs(gain) * op_move))
+    # and the valve stood before it and stays where it jumped to (a spike of
+    # the reading comes back at once): one and two samples either side, the
+    # position is within half the jump of where it was, and at least half the
+    # jump away from where it started
+    stays = np.ones(dm.size, bool)
+    for j in (1, 2):
+        after = np.full(dm.size, np.inf)
+        after[:dm.size - j] = mv[1 + j:] - mv[:mv.size - 1 - j]       # mv[k+1+j] - mv[k]
+        before = np.full(dm.size, np.inf)
+        before[j:] = mv[j:-1] - mv[:mv.size - 1 - j]                 # mv[k] - mv[k-j]
+        stays &= (np.abs(after) >= 0.5 * np.abs(dm)) & (np.abs(before) < 0.5 * np.abs(dm))
+    threshold = max(lim["jump_z"] * math.sqrt(2.0) * noise,
+                    2.0 * (abs(gain) * _hidden(op) + _hidden(mv)))
+    is_jump = ((np.abs(own) > threshold)
+               & (np.abs(dm) >= lim["jump_over_op"] * abs(gain) * op_move) & stays)
     at = np.flatnonzero(is_jump)
     toward = at[np.sign(own[at]) == np.sign(gap[at])]
     expected = 2.0 * (n - 1) * float(norm.sf(lim["jump_z"]))
