@@ -28,8 +28,11 @@ Where the valve's position is recorded (``mv``), it is read against the OP
 directly (:func:`valvediag.analysis.travel.valve_travel`), with no process
 between the two: a position that follows the OP clears the valve whatever
 the PV looks like, and a sticky or loose valve read from the position is
-named on any loop (on an integrating loop the Backlash Index still names the
-kind where it reads one, and a position that disagrees is said).
+named on any loop. On an integrating loop the Backlash Index still names the
+kind where it reads one, but a position that shows the valve slip names
+stiction (a dead band never jumps, and the index reads a slip behind a lag as
+a rounded turn); a position without jumps does not overrule the index's
+stiction (a small slip hides in the position's noise), and is said.
 
 Every verdict carries a confidence in [0, 1] and its evidence.
 """
@@ -743,7 +746,14 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                    f"lag (BI {turns.bi:.2f} with the lag fitted): if the loop has such a lag (a "
                    "slow sensor or positioner, a mixing volume) the valve may stick instead")
     if valve_faulty:
-        if bres_verdict not in ("stiction", "backlash") and travel.verdict != "undecided":
+        if travel.verdict == "stiction" and bres_verdict != "stiction":
+            # a slip seen in the position is a slip: a dead band never jumps, and
+            # the index reads a slip behind a lag as a rounded turn (a position
+            # without jumps says less: a small slip hides in its noise)
+            reason += (f"; but the recorded valve position shows the valve slip, which names "
+                       f"the fault: {travel.reason}")
+            bres_verdict, conf = "stiction", max(conf, 0.7)
+        elif bres_verdict not in ("stiction", "backlash") and travel.verdict != "undecided":
             # the index cannot name the kind: the recorded position does
             bres_verdict, conf = travel.verdict, max(conf, 0.6)
             reason += f"; the recorded valve position names it: {travel.reason}"
