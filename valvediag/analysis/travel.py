@@ -31,8 +31,6 @@ References
 ----------
 .. [1] Kano, M., Maruta, H., Kugemoto, H., Shimizu, K. (2004). Practical model
    and detection algorithm for valve stiction. IFAC DYCOPS 7, Boston.
-.. [2] Choudhury, M. A. A. S., Thornhill, N. F., Shah, S. L. (2005). Modelling
-   valve stiction. Control Engineering Practice 13, 641-658.
 """
 from __future__ import annotations
 
