@@ -53,8 +53,6 @@ from .travel import valve_travel
 __all__ = ["classify_loop", "LoopDiagnosis", "integrating_screen"]
 
 PROCESS_TYPES = ("integrating", "self-regulating", "unknown")
-#: Readings of the recorded valve position that name a valve fault.
-VALVE_FAULTS = ("stiction", "backlash", "undecided")
 
 MIN_SAMPLES = 32
 MIN_SAMPLES_PER_PERIOD = 8.0
@@ -607,7 +605,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     def slips_or(v, conf, reason):
         """No limit cycle to judge: a sticky valve may still show itself by its slips,
         or by its recorded position."""
-        if travel is not None and travel.verdict in VALVE_FAULTS:
+        if travel is not None and travel.fault:
             return travel_verdict(**common)
         if travel is not None and travel.verdict == "linear":
             # a valve that follows the OP makes no slips
@@ -617,7 +615,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     if quiet is not None:
         return slips_or(*quiet)
     if spp < MIN_SAMPLES_PER_PERIOD:
-        if travel is not None and travel.verdict in VALVE_FAULTS:
+        if travel is not None and travel.fault:
             return travel_verdict(**common)
         return verdict("insufficient-data", 0.8,
                        f"only {spp:.1f} samples per oscillation period; the waveform is lost "
@@ -653,7 +651,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        f"{travel.reason}: the oscillation is not the valve's; review the tuning "
                        "or trace an external disturbance; method: recorded valve position "
                        "against the OP", process_screen=pscreen, shape=shape, **common)
-    if travel is not None and travel.verdict in VALVE_FAULTS and selfreg:
+    if travel is not None and travel.fault and selfreg:
         return travel_verdict(process_screen=pscreen, shape=shape, **common)
     amp_cv = osc.amplitude_variation
     ev["amplitude_variation"] = amp_cv
@@ -674,7 +672,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         # a valve the signature cannot read in the cycle may still show its events
         return d if d.verdict in ("stiction", "backlash", "undecided") else \
             (valve_events("self-regulating") or d)
-    valve_faulty = travel is not None and travel.verdict in VALVE_FAULTS
+    valve_faulty = travel is not None and travel.fault
     if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR and not valve_faulty:
         conf = c_data * proc_conf * (0.5 + 0.5 * (1.0 - shape.pv_distortion / DIST_LINEAR))
         return verdict("linear-oscillation", conf,
