@@ -45,7 +45,7 @@ import numpy as np
 from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import Oscillation, detect_oscillation
-from .quality import bridge_short_gaps, despike, white_noise_std
+from .quality import bridge_short_gaps, despike, longest_run, white_noise_std
 from .signature import (KIND_SHARE, ValveSignature, cycle_transitions, horch_correlation,
                         stick_slip_events, valve_signature)
 from .travel import valve_travel
@@ -405,17 +405,6 @@ def integrating_screen(pv_detrended, apex_idx, apex_sign, pv_distortion):
     return "unknown", ev
 
 
-def _longest_finite_run(mask):
-    """(start, stop) of the longest run of True."""
-    if not mask.any():
-        return 0, 0
-    d = np.diff(np.r_[0, mask.astype(np.int8), 0])
-    starts = np.flatnonzero(d == 1)
-    stops = np.flatnonzero(d == -1)
-    k = int(np.argmax(stops - starts))
-    return int(starts[k]), int(stops[k])
-
-
 def _margin(x, limit, scale):
     """Confidence from the distance of ``x`` beyond ``limit`` on a log scale."""
     if not np.isfinite(x) or x <= 0:
@@ -527,7 +516,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     op, op_bridged = bridge_short_gaps(op)
     ev.update(spikes_masked=pv_spikes + op_spikes, samples_bridged=pv_bridged + op_bridged)
     good = np.isfinite(pv) & np.isfinite(op)
-    a, b = _longest_finite_run(good)
+    a, b = longest_run(good)
     ev["usable_samples"] = b - a
     ev["usable_fraction"] = round((b - a) / max(pv.size, 1), 4)
     if b - a < MIN_SAMPLES:

@@ -41,7 +41,7 @@ import polars as pl
 from .align import AlignedLoop, contiguous_segments, to_epoch_us
 
 __all__ = ["DataQuality", "quality_metrics", "white_noise_std", "stored_points", "despike",
-           "bridge_short_gaps", "bridge_short_breaks", "most_active_window",
+           "bridge_short_gaps", "bridge_short_breaks", "most_active_window", "longest_run",
            "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
 
 #: Mode texts meaning "the controller is not closing the loop".
@@ -430,6 +430,29 @@ def white_noise_std(x) -> float:
     w1 = 1.0 - w2
     r = (v[1:-1] - (w1 * v[:-2] + w2 * v[2:])) / np.sqrt(1.0 + w1 ** 2 + w2 ** 2)
     return float(1.4826 * np.median(np.abs(r - np.median(r))))
+
+
+def longest_run(mask) -> tuple[int, int]:
+    """``(start, stop)`` of the longest run of True in a boolean mask; ``(0, 0)`` if none.
+
+    Parameters
+    ----------
+    mask : array_like of bool, shape (n,)
+        Usually "every signal is finite here".
+
+    Returns
+    -------
+    tuple of int
+        ``mask[start:stop]`` is the run.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    if not mask.any():
+        return 0, 0
+    d = np.diff(np.r_[0, mask.astype(np.int8), 0])
+    starts = np.flatnonzero(d == 1)
+    stops = np.flatnonzero(d == -1)
+    k = int(np.argmax(stops - starts))
+    return int(starts[k]), int(stops[k])
 
 
 def most_active_window(x, m: int) -> int:
