@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from valvediag import VERDICTS, classify_loop, simulate_loop
+from valvediag.analysis.oscillation import detect_oscillation
 from valvediag.paper.scenarios import draw_cases, record
 
 
@@ -97,6 +98,20 @@ def test_noise_and_random_walk_are_no_oscillation():
     for pv in (noise, walk):
         d = classify_loop(pv, rng.normal(size=5000), sample_time=1.0, process_type="integrating")
         assert d.verdict == "no-oscillation", d.reason
+
+
+def test_a_cycle_in_part_of_a_noisy_record_is_segmented_at_its_period():
+    # 2 h of a 150 s cycle, then 20 h of noise at the cycle's middle: a band set
+    # by the whole record's range sits inside the noise of its quiet part,
+    # whose crossings would make the period a few samples
+    rng = np.random.default_rng(8)
+    t = np.arange(22 * 3600.0)
+    pv = np.where(t < 7200, np.sin(2 * np.pi * t / 150.0), 0.0) + rng.normal(0, 0.15, t.size)
+    osc = detect_oscillation(pv, 1.0)
+    assert osc.period == pytest.approx(150.0, rel=0.03)
+    assert osc.cycles == pytest.approx(7200 / 150, abs=3)
+    # each apex is the noisy record's extreme: high by up to a few noise deviations
+    assert 1.0 <= osc.amplitude <= 1.0 + 3 * 0.15
 
 
 def test_insufficient_data_reasons():

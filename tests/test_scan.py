@@ -585,3 +585,27 @@ def test_an_output_directory_that_cannot_be_written_stops_the_scan_before_the_in
     if db.exists():
         with Store(db, read_only=True) as s:
             assert s.counts()["samples"] == 0 and s.runs().height == 0
+
+
+def test_a_limit_cycle_that_stops_is_found_in_the_part_that_holds_it():
+    # a sticky flow valve cycles for 40 min after a set-point move, then comes to
+    # rest where the load balances it, for the rest of the day; the cycles folded
+    # over the whole record blur, its autocorrelation does not
+    run = simulate_loop(kc=0.4, ti=12.0, sample_time=1.0, n_samples=2400,
+                        process="self-regulating", tau=10.0, sp=50.0, sp_step=1.0,
+                        sp_step_time=60.0, load=0.0, valve="kano",
+                        valve_params={"S": 3.0, "J": 2.5}, noise_std=0.05, seed=5,
+                        valve_noise_band=0.3)
+    rng = np.random.default_rng(6)
+    quiet = 20 * 3600
+    pv = np.r_[run.pv, 51.0 + rng.normal(0, 0.15, quiet)]
+    op = np.r_[run.op, run.op[-1] + np.cumsum(rng.normal(0, 0.002, quiet))]
+    t = np.arange(pv.size, dtype=float)
+    spec = dataclasses.replace(SPEC, loop="FIC1", process_type="self-regulating")
+    r = analyse_loop(job_for(spec, t.size), {"pv": frame(t, pv), "op": frame(t, op)})
+    assert r.verdict == "stiction", r.reason
+    (ep,) = r.episodes
+    block = 4 * 150.0  # the activity screen's block: 4 periods of the 150 s cycle
+    assert (ep.start - T0).total_seconds() <= block
+    assert (ep.end - T0).total_seconds() == pytest.approx(2400, abs=block)
+    assert r.period_s == pytest.approx(150, rel=0.05)

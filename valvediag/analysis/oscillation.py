@@ -25,10 +25,20 @@ import numba
 import numpy as np
 from scipy.fft import irfft, next_fast_len, rfft
 
+from .quality import white_noise_std
+
 __all__ = ["Oscillation", "detect_oscillation", "acf_period", "acf_regularity"]
 
 #: Hysteresis band as a fraction of the half peak-to-peak range.
 BAND_FRACTION = 0.2
+#: A regular oscillation's mean cycle holds at least this share of the record's variance.
+PERIODIC_FRACTION_MIN = 0.4
+#: The ACF at its period is strong above this ...
+ACF_STRONG = 0.3
+#: ... and then band crossings this much faster than that period are noise's,
+NOISE_CROSSINGS = 1.0 / 3.0
+#: and the band is widened to this many standard deviations of the white noise.
+BAND_NOISE = 4.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -161,7 +171,7 @@ def _cycle_durations(starts, signs):
 
 
 @numba.njit(cache=True, nogil=True)
-def segment_cycles(x, period_hint, remove_drift):
+def segment_cycles(x, period_hint, remove_drift, band_floor=0.0):
     """Split a record into half-cycles.
 
     Parameters
@@ -173,6 +183,8 @@ def segment_cycles(x, period_hint, remove_drift):
     remove_drift : bool
         Subtract a one-period moving average (True) or only the mean (False,
         the literal reading of the paper).
+    band_floor : float
+        Least hysteresis half-width [PV unit].
 
     Returns
     -------
@@ -202,7 +214,7 @@ def segment_cycles(x, period_hint, remove_drift):
                 P = np.median(d)
         if P > 1.0 and P < n:
             y = x - _baseline(x, int(round(P)))
-    band = BAND_FRACTION * _half_range(y)
+    band = max(BAND_FRACTION * _half_range(y), band_floor)
     st, sg = hysteresis_runs(y, band)
     d = _cycle_durations(st, sg)
     period = np.median(d) if d.size > 0 else np.nan
@@ -367,8 +379,8 @@ class Oscillation:
     @property
     def is_regular(self) -> bool:
         """Regular oscillation: Thornhill regularity > 1, strong ACF and shape."""
-        return bool(self.cycles >= 2 and self.regularity > 1.0 and self.acf_at_period > 0.3
-                    and self.periodic_fraction > 0.4)
+        return bool(self.cycles >= 2 and self.regularity > 1.0 and self.acf_at_period > ACF_STRONG
+                    and self.periodic_fraction > PERIODIC_FRACTION_MIN)
 
     def plot(self, ax=None):
         """Plot the detrended record with its apices marked."""
@@ -489,15 +501,29 @@ def detect_oscillation(pv, sample_time: float, *, remove_drift: bool = True) -> 
     The period from the ACF seeds the moving-average baseline; the cycle
     durations then come from hysteresis crossings (band 20 % of the half
     range), which tolerates noise up to several percent of the amplitude.
+    Where an oscillation fills only part of a long, noisy record, that band
+    is narrow against the noise of the quiet part, whose crossings would
+    make the period a few samples; when the crossings come three times
+    faster than a strong ACF's period, the band is widened to four standard
+    deviations of the white noise. An oscillation smaller than that is not
+    segmented there.
     Several simultaneous oscillations of different periods are not separated
     (see Thornhill et al. 2003 for that).
     """
     x = np.ascontiguousarray(pv, dtype=float)
     hint, acf_peak = acf_period(linear_detrend(x))
     y, ai, asg, per, dur, _ = segment_cycles(x, hint if np.isfinite(hint) else 0.0, remove_drift)
+    if (np.isfinite(hint) and acf_peak > ACF_STRONG and per < NOISE_CROSSINGS * hint
+            and 3 * hint <= x.size):
+        # the record is periodic at the ACF's lag (three cycles of it fit), yet
+        # its band crossings come far faster: noise crosses a band set by a
+        # cycle that fills only part of the record. Cross beyond the noise.
+        y, ai, asg, per, dur, _ = segment_cycles(x, hint, remove_drift,
+                                                 BAND_NOISE * white_noise_std(x))
     reg = acf_regularity(y)
     amps = np.abs(np.diff(y[ai])) / 2 if ai.size >= 2 else np.array([np.nan])
     return Oscillation(period=float(per) * sample_time, amplitude=float(np.median(amps)),
                        cycles=max(0.0, (ai.size - 1) / 2), regularity=reg,
                        acf_at_period=acf_peak, periodic_fraction=_periodic_fraction(y, ai, asg),
-                       apex_idx=ai, apex_sign=asg, baseline_removed=y, sample_time=float(sample_time))
+                       apex_idx=ai, apex_sign=asg, baseline_removed=y,
+                       sample_time=float(sample_time))

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..analysis.align import AlignedLoop, align_loop, median_spacing, to_epoch_us
 from ..analysis.classify import LAG_DOUBT, LoopDiagnosis, classify_loop
+from ..analysis.oscillation import PERIODIC_FRACTION_MIN
 from ..analysis.quality import DataQuality, bridge_short_breaks, quality_metrics
 from ..io.registry import LoopSpec
 
@@ -228,17 +229,32 @@ def _is_episode(d: LoopDiagnosis, min_cycles: float) -> bool:
             and d.cycles >= min_cycles)
 
 
+def _is_intermittent(d: LoopDiagnosis, min_cycles: float) -> bool:
+    """Whether a segment that is no episode as a whole may hold one in a part.
+
+    A limit cycle that stops and starts again (a sticky valve that comes to
+    rest where the load happens to balance it) keeps the record's
+    autocorrelation high at its period and its ACF crossings regular, while
+    the cycles folded over the whole record (``periodic_fraction``) blur.
+    """
+    osc = d.oscillation
+    return (d.verdict == "no-oscillation" and osc is not None and d.cycles >= min_cycles
+            and math.isfinite(d.period) and osc.regularity > 1.0 and osc.acf_at_period > ACTIVE_ACF
+            and osc.periodic_fraction <= PERIODIC_FRACTION_MIN)
+
+
 def _segment_episodes(aligned, a, b, process_type, config, compressed=False
                       ) -> tuple[LoopDiagnosis, list[tuple[int, int, LoopDiagnosis]]]:
     """Classify one segment; return its diagnosis and its episodes (start, stop, diagnosis)."""
     d = _classify(aligned, a, b, process_type, config, compressed)
-    if not _is_episode(d, config.min_cycles):
+    whole = _is_episode(d, config.min_cycles)
+    if not (whole or _is_intermittent(d, config.min_cycles)):
         return d, []
     h = aligned.sample_time
     runs = _block_activity(aligned.pv[a:b], h, d.period, d.amplitude)
     covered = sum(rb - ra for ra, rb in runs)
     if covered >= SPLIT_COVERAGE * (b - a):
-        return d, [(a, b, d)]
+        return d, ([(a, b, d)] if whole else [])
     out = []
     for ra, rb in runs:
         if (rb - ra) * h < config.min_cycles * d.period:
@@ -246,7 +262,7 @@ def _segment_episodes(aligned, a, b, process_type, config, compressed=False
         sub = _classify(aligned, a + ra, a + rb, process_type, config, compressed)
         if _is_episode(sub, config.min_cycles):
             out.append((a + ra, a + rb, sub))
-    return d, (out or [(a, b, d)])
+    return d, (out or ([(a, b, d)] if whole else []))
 
 
 def _no_data_quality(frames: Mapping[str, pl.DataFrame] | None) -> dict:
