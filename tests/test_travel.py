@@ -176,7 +176,9 @@ def test_a_position_of_the_wrong_length_is_refused():
         classify_loop(np.zeros(100), np.zeros(100), sample_time=1.0, mv=np.zeros(99))
 
 
-def test_the_scan_reads_the_registrys_valve_position_tag():
+def _scan(pv, op, sp, mv=None):
+    """The scan's verdict on one self-regulating loop recorded at 1 s, with ``mv`` as its
+    registry's position tag when given."""
     import datetime as dt
 
     import polars as pl
@@ -184,10 +186,7 @@ def test_the_scan_reads_the_registrys_valve_position_tag():
     from valvediag.io.registry import LoopSpec
     from valvediag.scan import LoopJob, ScanConfig, analyse_loop
 
-    n = 7200
-    t = np.arange(n) * H
-    load = 4.0 * 2 / np.pi * np.arcsin(np.sin(2 * np.pi * t / 300.0))
-    pv, op, sp, mv = _flow_loop("linear", None, load, n)
+    n = pv.size
     t0 = dt.datetime(2026, 6, 1, tzinfo=dt.timezone.utc)
     ts = pl.Series([t0 + dt.timedelta(seconds=k) for k in range(n)],
                    dtype=pl.Datetime("us", "UTC"))
@@ -197,20 +196,46 @@ def test_the_scan_reads_the_registrys_valve_position_tag():
                              "status": pl.Series([None] * n, dtype=pl.String)})
 
     end = t0 + dt.timedelta(seconds=n)
-    verdicts = {}
-    for tag in (None, "FV1.POS"):
-        spec = LoopSpec(loop="FIC1", pv_tag="FI1", op_tag="FC1", sp_tag="FS1", mv_tag=tag,
-                        process_type="self-regulating", span=100.0)
-        frames = {"pv": frame(pv), "op": frame(op), "sp": frame(sp)}
-        if tag:
-            frames["mv"] = frame(mv)
-        job = LoopJob(spec=spec, start=end - dt.timedelta(hours=24), end=end, problems=())
-        r = analyse_loop(job, frames, ScanConfig(window_hours=24))
-        verdicts[tag] = r
+    spec = LoopSpec(loop="FIC1", pv_tag="FI1", op_tag="FC1", sp_tag="FS1",
+                    mv_tag="FV1.POS" if mv is not None else None,
+                    process_type="self-regulating", span=100.0)
+    frames = {"pv": frame(pv), "op": frame(op), "sp": frame(sp)}
+    if mv is not None:
+        frames["mv"] = frame(mv)
+    job = LoopJob(spec=spec, start=end - dt.timedelta(hours=24), end=end, problems=())
+    return analyse_loop(job, frames, ScanConfig(window_hours=24))
+
+
+def test_the_scan_reads_the_registrys_valve_position_tag():
+    n = 7200
+    t = np.arange(n) * H
+    load = 4.0 * 2 / np.pi * np.arcsin(np.sin(2 * np.pi * t / 300.0))
+    pv, op, sp, mv = _flow_loop("linear", None, load, n)
+    without, with_position = _scan(pv, op, sp), _scan(pv, op, sp, mv)
     # the PV and OP alone show a sticky valve's picture; the position clears the valve
-    assert verdicts[None].verdict == "stiction"
-    assert verdicts["FV1.POS"].verdict == "linear-oscillation", verdicts["FV1.POS"].reason
-    assert verdicts["FV1.POS"].evidence["valve_travel"]["verdict"] == "linear"
+    assert without.verdict == "stiction"
+    assert with_position.verdict == "linear-oscillation", with_position.reason
+    assert with_position.evidence["valve_travel"]["verdict"] == "linear"
+
+
+def test_the_report_draws_the_reported_position_behind_the_verdict():
+    from valvediag.report.plot import loop_svg
+
+    pv, op, sp, mv = _flow_loop("kano", {"S": 3.0, "J": 2.5}, None)
+    r = _scan(pv, op, sp, mv)
+    assert r.verdict == "stiction", r.reason
+    travel = r.detail.diagnosis.travel
+    # the result keeps only the stretch the figure draws, as its own copy
+    assert travel.mv.size == travel.op.size == 1500 and travel.mv.base is None
+    assert travel.jump_index.size >= 3 and travel.jump_index.max() < 1499
+    k = travel.jump_index
+    assert np.all(np.abs(np.diff(travel.mv)[k]) > 5 * travel.noise)   # each a real jump
+    svg = loop_svg(r, "f1")
+    assert "Valve position vs OP: stiction" in svg
+    assert ">jumps<" in svg                                 # the jumps, in red, named
+    # without a position the panel is the mean cycle's phase plot
+    svg = loop_svg(_scan(pv, op, sp), "f2")
+    assert "Valve position vs OP" not in svg and "Phase plot of the mean cycle" in svg
 
 
 def test_the_report_says_what_the_reported_position_showed():

@@ -48,7 +48,7 @@ from .oscillation import Oscillation, detect_oscillation
 from .quality import bridge_short_gaps, despike, longest_run, white_noise_std
 from .signature import (KIND_SHARE, ValveSignature, cycle_transitions, horch_correlation,
                         stick_slip_events, valve_signature)
-from .travel import valve_travel
+from .travel import ValveTravel, valve_travel
 
 __all__ = ["classify_loop", "LoopDiagnosis", "integrating_screen"]
 
@@ -267,6 +267,8 @@ class LoopDiagnosis:
         Every figure behind the verdict (JSON-serialisable).
     oscillation, backlash, shape : optional
         The intermediate results, for plots.
+    travel : valvediag.analysis.travel.ValveTravel or None
+        What the recorded valve position showed, where one was given.
     pv, op : numpy.ndarray
         The analysed stretch of data.
     sample_time : float
@@ -287,6 +289,7 @@ class LoopDiagnosis:
     oscillation: Oscillation | None = field(default=None, repr=False)
     backlash: BacklashIndex | None = field(default=None, repr=False)
     shape: CycleShape | None = field(default=None, repr=False)
+    travel: ValveTravel | None = field(default=None, repr=False)
     pv: np.ndarray = field(default=None, repr=False)
     op: np.ndarray = field(default=None, repr=False)
     sample_time: float = 1.0
@@ -493,10 +496,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             raise ValueError(f"pv has {pv.size} samples but mv has {mv.size}")
     base = dict(process_type=process_type, sample_time=h)
     ev: dict = {"method": method, "samples": int(pv.size)}
+    travel = None
 
     def verdict(v, conf, reason, **kw):
         out = dict(process_screen="metadata" if process_type != "unknown" else "unknown",
-                   bi=np.nan, period=np.nan, amplitude=np.nan, cycles=0.0, regularity=np.nan)
+                   bi=np.nan, period=np.nan, amplitude=np.nan, cycles=0.0, regularity=np.nan,
+                   travel=travel)
         out.update(kw)
         return LoopDiagnosis(verdict=v, confidence=round(float(np.clip(conf, 0.05, 0.99)), 2),
                              reason=reason, evidence=ev, **base, **out)
@@ -523,7 +528,6 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return verdict("insufficient-data", 0.95,
                        f"only {b - a} consecutive usable samples (need at least {MIN_SAMPLES})")
     x, u = pv[a:b], op[a:b]
-    travel = None
     if mv is not None:
         m, _ = bridge_short_gaps(despike(mv)[0])
         if np.isfinite(m[a:b]).sum() >= MIN_SAMPLES:

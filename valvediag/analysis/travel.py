@@ -35,7 +35,7 @@ References
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.stats import norm, poisson
@@ -143,6 +143,29 @@ class ValveTravel:
     def fault(self) -> bool:
         """True when the position shows a valve nonlinearity (sticky, loose or unnamed)."""
         return self.verdict in ("stiction", "backlash", "undecided")
+
+    def excerpt(self, samples: int = 1500) -> "ValveTravel":
+        """A copy holding only the stretch in which the OP travels furthest.
+
+        Parameters
+        ----------
+        samples : int
+            Length of the stretch kept [samples].
+
+        Returns
+        -------
+        ValveTravel
+            The same figures; ``mv``, ``op`` and ``jump_index`` cut to the
+            stretch (copies, so the excerpt does not keep the whole record
+            alive). A report draws it.
+        """
+        if self.mv is None or self.op is None:
+            return self
+        lo = most_active_window(self.op, samples)
+        hi = lo + samples
+        k = self.jump_index
+        return replace(self, mv=np.array(self.mv[lo:hi]), op=np.array(self.op[lo:hi]),
+                       jump_index=np.array(k[(k >= lo) & (k < hi - 1)] - lo))
 
     def as_dict(self) -> dict:
         """The figures as plain types (NaN as None)."""

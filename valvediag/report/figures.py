@@ -12,7 +12,10 @@ figure (five panels) from the plot data the scan kept
   (:meth:`valvediag.analysis.bi.BacklashIndex.plot`); for a linear oscillation the
   PV and OP with the apices;
 * the phase plot of the mean cycle, OP against the implied valve position
-  (:meth:`valvediag.analysis.linearity.CycleShape.plot`);
+  (:meth:`valvediag.analysis.linearity.CycleShape.plot`), or, where the
+  loop records its valve position and that position backs the verdict, the
+  position against the OP with its jumps in red
+  (:meth:`valvediag.analysis.travel.ValveTravel.plot`);
 * for a valve fault, the Backlash Index of every half cycle against the
   verdict limits; for a linear oscillation, the mean PV cycle against a pure
   sine wave (its harmonic distortion is what makes it linear).

@@ -611,7 +611,7 @@ def _cycle_durations(ax: _Panel, diag):
     ax.title = f"Duration of every cycle (dashed: the period, {diag.period:.4g} s)"
 
 
-def _mean_cycle(ax: _Panel, shape):
+def _mean_cycle(ax: _Panel, shape, linear: bool = True):
     y = np.asarray(shape.pv_cycle, dtype=float)
     n = y.size
     if n == 0 or not np.isfinite(y).all():
@@ -624,7 +624,26 @@ def _mean_cycle(ax: _Panel, shape):
     ax.line(ph, y - y.mean(), "#1f5fa8", 1.4, label="mean PV cycle")
     ax.xlabel, ax.ylabel = "phase [cycle]", "PV minus mean"
     ax.title = (f"Mean cycle of the PV against a sine wave (harmonic distortion "
-                f"{shape.pv_distortion:.3f}): a sine-like swing is not the valve's doing")
+                f"{shape.pv_distortion:.3f})")
+    if linear:
+        ax.title += ": a sine-like swing is not the valve's doing"
+
+
+def _valve_position(ax: _Panel, travel):
+    """The recorded valve position against the OP, its jumps towards the OP in red."""
+    op = np.asarray(travel.op, dtype=float)
+    mv = np.asarray(travel.mv, dtype=float)
+    ax.line(op, mv, _C0, 0.8, label="position")
+    k = np.asarray(travel.jump_index, dtype=int)
+    if k.size:
+        # one line through every jump, broken by NaN between them
+        xs = np.full(3 * k.size, np.nan)
+        ys = np.full(3 * k.size, np.nan)
+        xs[0::3], xs[1::3] = op[k], op[k + 1]
+        ys[0::3], ys[1::3] = mv[k], mv[k + 1]
+        ax.line(xs, ys, _C3, 1.8, label="jumps")
+    ax.xlabel, ax.ylabel = "OP [%]", "position [%]"
+    ax.title = f"Valve position vs OP: {travel.verdict}"
 
 
 def loop_svg(result, prefix: str, *, zoom_cycles: float = 4.0, title: str | None = None
@@ -698,7 +717,12 @@ def loop_svg(result, prefix: str, *, zoom_cycles: float = 4.0, title: str | None
     ax_z.xlabel, ax_z.ylabel = "time (UTC)", f"PV{unit}"
     ax_z.xticks_n, ax_z.yticks_n = 5, 4
 
-    if shape is not None and np.isfinite(np.asarray(shape.pv_cycle, dtype=float)).all() \
+    travel = diag.travel if diag is not None else None
+    if travel is not None and travel.mv is not None and travel.op is not None \
+            and (travel.fault or travel.verdict == "linear"):
+        _valve_position(ax_p, travel)
+        ax_p.xticks_n = 3
+    elif shape is not None and np.isfinite(np.asarray(shape.pv_cycle, dtype=float)).all() \
             and np.isfinite(np.asarray(shape.op_cycle, dtype=float)).all():
         pvc = np.asarray(shape.pv_cycle, dtype=float)
         opc = np.asarray(shape.op_cycle, dtype=float)
@@ -714,7 +738,7 @@ def loop_svg(result, prefix: str, *, zoom_cycles: float = 4.0, title: str | None
     if bres is not None and np.asarray(bres.bi_per_cycle).size:
         _bi_per_cycle(ax_b, bres)
     elif shape is not None:
-        _mean_cycle(ax_b, shape)
+        _mean_cycle(ax_b, shape, linear=result.verdict == "linear-oscillation")
     elif diag is not None:
         _cycle_durations(ax_b, diag)
     else:

@@ -496,7 +496,8 @@ def _own(d: LoopDiagnosis | None) -> LoopDiagnosis | None:
 
     The Backlash Index is measured on the diagnosed PV itself, so its record
     shares the one copy (a third of a result's memory: 2 MB per loop-day at
-    1 s, held by the flow for every loop needing action).
+    1 s, held by the flow for every loop needing action). Of a recorded
+    valve position only the stretch a report draws is kept.
     """
     if d is None:
         return None
@@ -507,7 +508,8 @@ def _own(d: LoopDiagnosis | None) -> LoopDiagnosis | None:
         same = (bres.pv is not None and pv is not None and bres.pv.shape == pv.shape
                 and np.array_equal(bres.pv, pv, equal_nan=True))
         bres = dataclasses.replace(bres, pv=pv if same else own(bres.pv))
-    return dataclasses.replace(d, pv=pv, op=own(d.op), backlash=bres)
+    travel = d.travel.excerpt() if d.travel is not None else None
+    return dataclasses.replace(d, pv=pv, op=own(d.op), backlash=bres, travel=travel)
 
 
 def _detail(aligned: AlignedLoop, verdict: str, rep: LoopDiagnosis | None = None,
