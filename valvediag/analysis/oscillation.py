@@ -37,8 +37,10 @@ PERIODIC_FRACTION_MIN = 0.4
 ACF_STRONG = 0.3
 #: ... and then band crossings this much faster than that period are noise's,
 NOISE_CROSSINGS = 1.0 / 3.0
-#: and the band is widened to this many standard deviations of the white noise.
+#: and the band is widened to this many standard deviations of the white noise,
 BAND_NOISE = 4.0
+#: where the cycles then found span at most this share of the record.
+PART_TIME = 0.75
 
 
 @numba.njit(cache=True, nogil=True)
@@ -336,6 +338,9 @@ class Oscillation:
         The record minus its drift [PV unit].
     sample_time : float
         [s]
+    acf_period : float
+        Lag of the autocorrelation function's first maximum after its first
+        zero crossing [s]; NaN where it has none.
     """
 
     period: float
@@ -348,6 +353,7 @@ class Oscillation:
     apex_sign: np.ndarray
     baseline_removed: np.ndarray
     sample_time: float
+    acf_period: float = float("nan")
 
     @property
     def samples_per_period(self) -> float:
@@ -505,8 +511,10 @@ def detect_oscillation(pv, sample_time: float, *, remove_drift: bool = True) -> 
     is narrow against the noise of the quiet part, whose crossings would
     make the period a few samples; when the crossings come three times
     faster than a strong ACF's period, the band is widened to four standard
-    deviations of the white noise. An oscillation smaller than that is not
-    segmented there.
+    deviations of the white noise, and that reading is kept where the cycles
+    it finds span at most three quarters of the record. An oscillation
+    smaller than that is not segmented there, and a swing as small as the
+    noise all through the record (a slow load's) is left as it was read.
     Several simultaneous oscillations of different periods are not separated
     (see Thornhill et al. 2003 for that).
     """
@@ -516,14 +524,18 @@ def detect_oscillation(pv, sample_time: float, *, remove_drift: bool = True) -> 
     if (np.isfinite(hint) and acf_peak > ACF_STRONG and per < NOISE_CROSSINGS * hint
             and 3 * hint <= x.size):
         # the record is periodic at the ACF's lag (three cycles of it fit), yet
-        # its band crossings come far faster: noise crosses a band set by a
-        # cycle that fills only part of the record. Cross beyond the noise.
-        y, ai, asg, per, dur, _ = segment_cycles(x, hint, remove_drift,
-                                                 BAND_NOISE * white_noise_std(x))
+        # its band crossings come far faster: noise may cross a band set by a
+        # cycle that fills only part of the record. Cross beyond the noise, and
+        # keep that reading where the cycles it finds do fill only a part (a
+        # swing as small as the noise all through the record stays unsegmented)
+        seg = segment_cycles(x, hint, remove_drift, BAND_NOISE * white_noise_std(x))
+        ai2 = seg[1]
+        if ai2.size >= 2 and ai2[-1] - ai2[0] <= PART_TIME * x.size:
+            y, ai, asg, per, dur, _ = seg
     reg = acf_regularity(y)
     amps = np.abs(np.diff(y[ai])) / 2 if ai.size >= 2 else np.array([np.nan])
     return Oscillation(period=float(per) * sample_time, amplitude=float(np.median(amps)),
                        cycles=max(0.0, (ai.size - 1) / 2), regularity=reg,
                        acf_at_period=acf_peak, periodic_fraction=_periodic_fraction(y, ai, asg),
                        apex_idx=ai, apex_sign=asg, baseline_removed=y,
-                       sample_time=float(sample_time))
+                       sample_time=float(sample_time), acf_period=float(hint) * sample_time)

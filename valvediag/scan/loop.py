@@ -51,6 +51,9 @@ ACTIVE_AMPLITUDE = 0.4
 ACTIVE_ACF = 0.3
 #: A segment whose active blocks cover at least this share is one episode.
 SPLIT_COVERAGE = 0.75
+#: A segment is searched for a part-time cycle where the cycles counted and the
+#: autocorrelation's period agree within this factor (:func:`_is_intermittent`).
+PERIOD_AGREE = 1.5
 #: Confidence factor for a compressed PV, and for one with fewer than
 #: :data:`MIN_RAW_PER_CYCLE` raw samples per period.
 COMPRESSION_PENALTY = (0.9, 0.7)
@@ -236,10 +239,15 @@ def _is_intermittent(d: LoopDiagnosis, min_cycles: float) -> bool:
     rest where the load happens to balance it) keeps the record's
     autocorrelation high at its period and its ACF crossings regular, while
     the cycles folded over the whole record (``periodic_fraction``) blur.
+    The cycles counted must come at the autocorrelation's period: where
+    noise crosses the band all through a record whose ACF follows a slow
+    swing, the short "cycles" are the noise's.
     """
     osc = d.oscillation
     return (d.verdict == "no-oscillation" and osc is not None and d.cycles >= min_cycles
-            and math.isfinite(d.period) and osc.regularity > 1.0 and osc.acf_at_period > ACTIVE_ACF
+            and math.isfinite(d.period)
+            and abs(math.log(d.period / osc.acf_period)) <= math.log(PERIOD_AGREE)
+            and osc.regularity > 1.0 and osc.acf_at_period > ACTIVE_ACF
             and osc.periodic_fraction <= PERIODIC_FRACTION_MIN)
 
 
