@@ -14,7 +14,7 @@ import numpy as np
 
 from ..analysis.align import AlignedLoop, align_loop, median_spacing, to_epoch_us
 from ..analysis.classify import LAG_DOUBT, LoopDiagnosis, classify_loop
-from ..analysis.oscillation import PERIODIC_FRACTION_MIN
+from ..analysis.oscillation import ACF_STRONG, PERIODIC_FRACTION_MIN
 from ..analysis.quality import DataQuality, bridge_short_breaks, quality_metrics
 from ..io.registry import LoopSpec
 
@@ -247,7 +247,7 @@ def _is_intermittent(d: LoopDiagnosis, min_cycles: float) -> bool:
     return (d.verdict == "no-oscillation" and osc is not None and d.cycles >= min_cycles
             and math.isfinite(d.period)
             and abs(math.log(d.period / osc.acf_period)) <= math.log(PERIOD_AGREE)
-            and osc.regularity > 1.0 and osc.acf_at_period > ACTIVE_ACF
+            and osc.regularity > 1.0 and osc.acf_at_period > ACF_STRONG
             and osc.periodic_fraction <= PERIODIC_FRACTION_MIN)
 
 
