@@ -42,6 +42,7 @@ from scipy.stats import norm, poisson
 
 from ..models.valves import apply_valve
 from .quality import longest_run, most_active_window, stored_points, white_noise_std
+from .signature import NOISE_REVERSAL
 
 __all__ = ["ValveTravel", "valve_travel", "TRAVEL_LIMITS"]
 
@@ -78,8 +79,6 @@ TRAVEL_LIMITS = {
 }
 #: Most samples read (the window in which the OP travels furthest).
 MAX_SAMPLES = 20_000
-#: OP noise multiples that are not a reversal of the actuator (as the valve signature's).
-NOISE_REVERSAL = 6.0
 _JS = (0.0, 0.25, 0.5, 0.75, 1.0)
 _S_POINTS = 20
 
