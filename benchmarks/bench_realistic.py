@@ -18,6 +18,10 @@ misses are not to be looked at. The targets are judged on the held-out set.
 On 2026-11-26 the class ``level-stiction-events`` was redrawn to hold only
 records that show at least three slips through their noise (before, a valve
 that slipped unseen counted), which changed that class's loops in every set.
+On 2026-11-27 the healthy classes gained load steps (pumps that start and
+stop) and half the healthy flows slow integral action, as the sticky flow
+valves without a cycle have (a detector of events must not read a load's
+step as a slip): the healthy classes' loops changed in every set.
 
 Usage: python benchmarks/bench_realistic.py [--loops N] [--set dev|dev2|heldout|all] [--workers W]
        [--classes C1,C2] [--misses] [--evidence FILE] [--valve-position]

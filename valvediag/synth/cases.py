@@ -22,7 +22,8 @@ records show more, and the scan must be right on all of it
 * healthy valves under non-sinusoidal disturbances (square, triangular,
   clipped) at 10-60 samples per period, on level and flow loops;
 * healthy valves in loops tuned too tightly (ringing), and quiet healthy
-  loops with set-point moves and a wandering load;
+  loops with set-point moves, a wandering load and load steps (pumps that
+  start and stop), half the flows behind slow integral action;
 * dead responses: the OP moves over tens of percent and the PV does not.
 
 Each loop is simulated in closed loop (:func:`valvediag.models.simulate_loop`)
@@ -361,6 +362,12 @@ def _try(klass: str, rng: np.random.Generator):
     elif klass.endswith("healthy"):
         profile_sp = _sp_moves(rng, n, hc, (1800.0, 7200.0), float(rng.uniform(1.0, 4.0)))
         profile_load = _random_walk(rng, n, hc, 900.0, 1.0)
+        # pumps start and stop: the load steps, as a sticky valve's slip steps the PV
+        profile_load += _sp_moves(rng, n, hc, (1800.0, 7200.0), float(rng.uniform(1.0, 3.0)))
+        if not integ and rng.random() < 0.5:
+            # slow integral action, as on the sticky flow valves without a cycle:
+            # the error outlasts a load's move and the OP creeps for minutes
+            sim.update(kc=float(rng.uniform(0.05, 0.3)), ti=float(rng.uniform(60.0, 600.0)))
     elif klass == "dead-response":
         return _dead_response(rng, h, length, compressed, noise_pct, p)
     if "stiction" in klass or "backlash" in klass or klass in ("level-linear-tuning",):
