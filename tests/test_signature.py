@@ -226,6 +226,50 @@ def test_two_slips_and_no_other_jump_make_a_snapshot_sticky():
     assert e.consistent == 2 and not e.found, e.reason
 
 
+def _overshooting_slips(n_events=5, seed=11):
+    """A flow loop at set point 50 behind slow integral action: between slips
+    the PV stands 0.3 off the set point (the load keeps the error from
+    growing) while the OP creeps 1 %; then the valve slips and the PV jumps
+    2.0, far past the set point, and settles back to 0.3 on the other side."""
+    rng = np.random.default_rng(seed)
+    pv, op, out, at = [], [], 40.0, 50.3
+    for i in range(n_events):
+        side = 1.0 if i % 2 else -1.0          # the error's side: PV = 50 - 0.3 side
+        pv.append(np.r_[np.linspace(at, 50.0 - 0.3 * side, 100), np.full(300, 50.0 - 0.3 * side)])
+        op.append(out + side * np.r_[np.zeros(100), np.linspace(0, 1.0, 300)])
+        out += side
+        at = 50.0 + 1.7 * side                 # the slip: 2.0 towards and past the set point
+    pv.append(np.r_[np.linspace(at, 50.0, 100), np.full(300, 50.0)])
+    op.append(np.full(400, out))
+    pv = np.concatenate(pv) + rng.normal(0, 0.02, 400 * (n_events + 1))
+    op = np.concatenate(op) + rng.normal(0, 0.01, 400 * (n_events + 1))
+    return pv, op, np.full(pv.size, 50.0)
+
+
+def test_a_slip_behind_slow_integral_action_may_overshoot_the_set_point():
+    # the error stands (it does not grow) and the slip closes it more than
+    # six times over: still a stuck valve's slips (neither was one before
+    # 2026-11-27)
+    pv, op, sp = _overshooting_slips()
+    e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp)
+    assert e.found and e.kind == "stiction" and e.consistent >= 4, e.reason
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="self-regulating")
+    assert d.verdict == "stiction", d.reason
+
+
+def test_two_events_of_different_kinds_do_not_make_a_snapshot_faulty():
+    # a slip, then a take-up: in a snapshot two events name a fault only
+    # where they agree on its kind
+    pv1, op1, _ = _slip_record(n_events=1)
+    pv2, op2, _ = _takeup_record(n_events=1)
+    pv = np.r_[pv1, pv2 - pv2[0] + pv1[-1]]
+    op = np.r_[op1, op2 - op2[0] + op1[-1]]
+    sp = np.full(pv.size, 50.0)
+    e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp)
+    assert e.consistent == 2 and e.slips == 1 and e.takeups == 1, e.reason
+    assert not e.found, e.reason
+
+
 def test_load_steps_away_from_the_set_point_are_not_slips():
     pv, op, sp = _slip_record(towards_sp=False)
     e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp)

@@ -764,9 +764,9 @@ class StickSlipEvents:
 
 #: Fewest valve events, and the least share of the PV's jumps that must be
 #: valve events; or, in a self-regulating record of at most ``SNAPSHOT_S``,
-#: this many valve events and no other jump (a level's kinks need
-#: ``MIN_SLIPS`` always: a load's turn kinks a level too, and the OP has
-#: crept the kink's way before it half the time).
+#: this many valve events, all of one kind, and no other jump (a level's
+#: kinks need ``MIN_SLIPS`` always: a load's turn kinks a level too, and the
+#: OP has crept the kink's way before it half the time).
 MIN_SLIPS = 3
 MIN_SLIP_SHARE = 0.75
 MIN_SLIPS_ALONE = 2
@@ -830,8 +830,14 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
 
     * the set point did not move over the stretch before it and during it;
     * the OP moved by more than its noise band over that stretch;
-    * the control error had grown over that stretch, and the jump reduces it
-      by no more than three times the error it closes.
+    * the control error had grown over that stretch, or stood beyond the
+      noise on one side of the set point all through it (a wandering load
+      can shrink the error a stuck valve leaves, but not bring the PV back);
+    * the PV held over that stretch, or drifted away from the set point;
+    * the jump goes towards the set point. It may overshoot it: behind slow
+      integral action the error that makes the OP creep is small, and the
+      slip moves the PV by the process's gain times the slip jump, whatever
+      the error.
 
     A load step makes the PV jump *away* from its set point, and a set-point
     step moves the set point first, so neither counts. This needs no process
@@ -879,7 +885,8 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     A fault needs :data:`MIN_SLIPS` valve events that make
     :data:`MIN_SLIP_SHARE` of the jumps (or kinks) judged, or, in a
     self-regulating snapshot of at most :data:`SNAPSHOT_S`,
-    :data:`MIN_SLIPS_ALONE` and no other (a level's kinks are weaker evidence
+    :data:`MIN_SLIPS_ALONE` of one kind (all slips or all take-ups) and no
+    other (a level's kinks are weaker evidence
     one by one: a load's turn kinks a level too, and half the time the OP
     had crept its way).
 
@@ -888,7 +895,9 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     samples), where a slow process spreads a slip over more than 128
     samples, where the OP moves too slowly for a take-up to make a jump (a
     loose valve behind slow integral action shows no event), and where the
-    set point is missing and moves. A sticky valve with a small slip jump
+    set point is missing and moves. A load step that moves a flow towards its
+    set point while a slow controller still holds an error (a pump started as
+    the OP crept) reads as a slip. A sticky valve with a small slip jump
     after a large stick band is followed, within the step, by the OP's own
     motion and may read as a mix. On a level a step of the load that comes
     after the OP has crept the same way (an upstream pump started as the
@@ -935,9 +944,13 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
             continue
         n_ok = int(found[1].sum())
         share = n_ok / found[0].size
-        fault = ((n_ok >= MIN_SLIPS and share >= MIN_SLIP_SHARE)
-                 or (n_ok >= MIN_SLIPS_ALONE and share == 1.0 and short
-                     and process == "self-regulating"))
+        alone = (n_ok >= MIN_SLIPS_ALONE and share == 1.0 and short
+                 and process == "self-regulating")
+        if alone and n_ok < MIN_SLIPS:
+            # so few events name a fault only where they agree on its kind
+            n_slip = int(np.sum(found[1] & (found[3] <= TAKEUP_OP * band)))
+            alone = n_slip in (0, n_ok)
+        fault = (n_ok >= MIN_SLIPS and share >= MIN_SLIP_SHARE) or alone
         # the shortest step that shows a fault; else the one with the most valve events
         if best is None or (not best[3] and (fault or n_ok > best[2])):
             best = (L, found, n_ok, fault)
@@ -1020,7 +1033,12 @@ def _slips(y, op, err, sp, L, thr, band, err_min):
         e_before = float(np.mean(err[k - q:k + 1]))
         travel[i] = op[k] - op[a]
         sp_still = np.ptp(sp[a:min(k + L + 1, n)]) <= sp_tol
-        grew = abs(e_before) >= err_min and abs(e_before) > abs(e_start)
+        # the valve held the PV off its set point: the error grew, or it stood
+        # beyond the noise on one side all the while (a wandering load can
+        # shrink the error a stuck valve leaves, but not bring the PV back)
+        grew = abs(e_before) >= err_min and (
+            abs(e_before) > abs(e_start)
+            or (abs(e_start) >= err_min and np.sign(e_start) == np.sign(e_before)))
         towards = np.sign(d[k]) == np.sign(e_before)
         # while the OP crept the PV held, or drifted away from the set point:
         # a loop recovering from a load step moves back all the while
@@ -1028,8 +1046,6 @@ def _slips(y, op, err, sp, L, thr, band, err_min):
         y0, y1 = y0[np.isfinite(y0)], y1[np.isfinite(y1)]
         held = (y0.size > 0 and y1.size > 0
                 and (y1.mean() - y0.mean()) * np.sign(d[k]) <= abs(d[k]) / 4)
-        # the PV closes part of the error, it does not overshoot far past it
-        towards = towards and abs(d[k]) <= 3.0 * abs(e_before) + err_min
         ok[i] = sp_still and abs(travel[i]) > band and grew and towards and held
         # a jump away from the set point is a load's: no valve makes one (a
         # slip moves the PV the way the controller drives it), so it says
