@@ -937,6 +937,12 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     if not reads:
         return StickSlipEvents(found=False, reason=f"only {pv.size} samples", **base)
     short = pv.size * h <= SNAPSHOT_S
+
+    def slips_of(ok, on):
+        # a level's controller answers a slope's jump only through the error it
+        # grows, so the OP moves on after a slip too: there every event is a slip
+        return ok & ((on <= TAKEUP_OP * band) | (process == "integrating"))
+
     best = None
     for L, read in reads:
         found = read()
@@ -948,7 +954,7 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
                  and process == "self-regulating")
         if alone and n_ok < MIN_SLIPS:
             # so few events name a fault only where they agree on its kind
-            n_slip = int(np.sum(found[1] & (found[3] <= TAKEUP_OP * band)))
+            n_slip = int(slips_of(found[1], found[3]).sum())
             alone = n_slip in (0, n_ok)
         fault = (n_ok >= MIN_SLIPS and share >= MIN_SLIP_SHARE) or alone
         # the shortest step that shows a fault; else the one with the most valve events
@@ -958,9 +964,7 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
         what = "kink of the level" if process == "integrating" else "jump of the PV"
         return StickSlipEvents(found=False, reason=f"no {what} beyond its noise", **base)
     L, (idx, ok, travel, on), n_ok, is_fault = best
-    # a level's controller answers a slope's jump only through the error it
-    # grows, so the OP moves on after a slip too: there every event is a slip
-    slip = ok & ((on <= TAKEUP_OP * band) | (process == "integrating"))
+    slip = slips_of(ok, on)
     n_slip, n_take = int(slip.sum()), int((ok & ~slip).sum())
     op_travel = float(np.median(travel[ok])) if n_ok else math.nan
     kind = ""

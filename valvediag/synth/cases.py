@@ -164,8 +164,8 @@ def alternating_steps(rng: np.random.Generator, n: int, every_s=(1500.0, 3000.0)
         sign = -sign
 
 
-def _sp_moves(rng, n: int, h: float, every_s: tuple[float, float], size: float) -> np.ndarray:
-    """Set-point moves of +-``size`` at random intervals."""
+def _random_steps(rng, n: int, h: float, every_s: tuple[float, float], size: float) -> np.ndarray:
+    """Steps of +-``size`` at random intervals (set-point moves, load steps)."""
     out = np.zeros(n)
     t, level = rng.uniform(*every_s) * 0.3, 0.0
     while t < n * h:
@@ -330,7 +330,7 @@ def _try(klass: str, rng: np.random.Generator):
     elif klass == "level-stiction-events":
         # proportional-only level control: no integral action, no limit cycle
         sim.update(ti=1e12, kc=float(rng.uniform(0.5, 2.0)))
-        profile_sp = _sp_moves(rng, n, hc, (1200.0, 3600.0), float(rng.uniform(2.0, 6.0)))
+        profile_sp = _random_steps(rng, n, hc, (1200.0, 3600.0), float(rng.uniform(2.0, 6.0)))
         profile_load = _random_walk(rng, n, hc, 600.0, 0.3 * vp["S"])
     elif klass == "flow-stiction-events":
         # slow integral action and a wandering load: the OP creeps for minutes
@@ -360,10 +360,10 @@ def _try(klass: str, rng: np.random.Generator):
         kc = float(rng.uniform(0.85, 0.97)) * ultimate_gain_pi_integrator(tau, theta, ti)
         sim.update(kc=kc, ti=ti, dead_time=theta, lag=0.0, load_noise_std=0.5)
     elif klass.endswith("healthy"):
-        profile_sp = _sp_moves(rng, n, hc, (1800.0, 7200.0), float(rng.uniform(1.0, 4.0)))
+        profile_sp = _random_steps(rng, n, hc, (1800.0, 7200.0), float(rng.uniform(1.0, 4.0)))
         profile_load = _random_walk(rng, n, hc, 900.0, 1.0)
         # pumps start and stop: the load steps, as a sticky valve's slip steps the PV
-        profile_load += _sp_moves(rng, n, hc, (1800.0, 7200.0), float(rng.uniform(1.0, 3.0)))
+        profile_load += _random_steps(rng, n, hc, (1800.0, 7200.0), float(rng.uniform(1.0, 3.0)))
         if not integ and rng.random() < 0.5:
             # slow integral action, as on the sticky flow valves without a cycle:
             # the error outlasts a load's move and the OP creeps for minutes
@@ -455,7 +455,7 @@ def _dead_response(rng, h, length, compressed, noise_pct, p):
     noisy = rng.random() < 0.5
     pv = np.full(n, level) + (rng.normal(0, 0.05, n) if noisy else 0.0)
     # the operator or a cascade moves the set point around the stuck PV
-    sp = level + _sp_moves(rng, n, h, (900.0, 3600.0), float(rng.uniform(2.0, 8.0)))
+    sp = level + _random_steps(rng, n, h, (900.0, 3600.0), float(rng.uniform(2.0, 8.0)))
     sp += np.where(sp == level, rng.choice((-1.0, 1.0)) * 3.0, 0.0)
     kc, ti = float(rng.uniform(0.2, 1.0)), float(rng.uniform(60.0, 600.0))
     e = sp - pv
