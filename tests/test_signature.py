@@ -410,6 +410,33 @@ def test_a_levels_kinks_that_the_op_did_not_drive_are_not_slips():
     assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
 
 
+def test_a_tight_level_loops_quick_turn_after_a_load_step_is_not_a_slip():
+    """A healthy level under tight PI control (Kc 2.9, Ti 200 s, tau 150 s, 5 s
+    samples) whose inflow steps by 2 every 67-100 minutes: after each step the
+    level ramps for about 20 samples while the OP moves fast, then the valve,
+    following the OP, turns it. Read over a 32-sample half-window the turn
+    looks like a kink that the OP drove, after a straight run; but the
+    stretch since the step is too short to tell a valve that held from one
+    that followed, so it says nothing. (Before 2026-11-27, 16 of 16 such
+    turns were read as slips.)"""
+    rng = np.random.default_rng(3)
+    n = 2 * 17_280
+    steps, k = np.zeros(n), 400
+    while True:
+        k += int(rng.uniform(4000, 6000) / 2.5)
+        if k >= n:
+            break
+        steps[k:] += rng.choice((-1.0, 1.0)) * 2.0
+    sim = simulate_loop(process="integrating", valve="linear", sample_time=2.5, n_samples=n,
+                        kc=2.9, ti=200.0, tau=150.0, dead_time=6.0, lag=12.0, sp=50.0,
+                        load=50.0, noise_std=0.1, load_profile=steps, seed=3)
+    pv, op, sp = sim.pv[::2], sim.op[::2], sim.sp[::2]
+    e = stick_slip_events(pv, op, 5.0, process="integrating", sp=sp)
+    assert not e.found and e.consistent < MIN_SLIPS, e.reason
+    d = classify_loop(pv, op, sp, sample_time=5.0, process_type="integrating")
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+
+
 def test_loop_sense_reads_which_way_the_op_moves_the_pv():
     from valvediag.analysis.signature import loop_sense
 

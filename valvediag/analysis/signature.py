@@ -875,7 +875,14 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     step, over that half-window) and the step is abrupt (at half the window
     it shows at :data:`KINK_ABRUPT` of its size within a quarter window).
     A valve that follows the OP bends the level as the OP moves, and its
-    kinks, where a step of the OP makes one, are judged and not slips. The
+    kinks, where a step of the OP makes one, are judged and not slips. Over
+    the stretch since the last kink (or the half-window), a valve that
+    followed the OP would have bent the level by about the whole step and one
+    that held not at all; where a parabola fitted to that stretch does not
+    read its slope change to :data:`KINK_HELD` / 2 of the step (a short
+    stretch: a tight loop turning a level a few samples after a load's
+    step), the kink is not judged, and where it does, the slope change must
+    stay within :data:`KINK_HELD` of the step. The
     controller answers a level's slip only through the error that slowly
     grows from it, so no take-up can be read: every valve event is a slip.
     Half-windows of at most 128 samples keep the fitted stretch within the
@@ -1134,6 +1141,19 @@ def _window_corr(y: np.ndarray, u: np.ndarray) -> np.ndarray:
     return out
 
 
+def _stretch_bend(y, noise):
+    """(slope change across ``y``, its standard error) from a parabola fitted by
+    least squares [PV unit/sample], or None for fewer than 8 samples."""
+    m = y.size
+    if m < 8:
+        return None
+    t = np.arange(m, dtype=float) - (m - 1) / 2.0
+    X = np.c_[t * t, t, np.ones(m)]
+    coef = np.linalg.lstsq(X, y, rcond=None)[0]
+    se = noise * math.sqrt(float(np.linalg.inv(X.T @ X)[0, 0]))
+    return 2.0 * m * float(coef[0]), 2.0 * m * se
+
+
 def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
     """Kinks of a level read over half-windows of ``w`` samples, or None.
 
@@ -1154,6 +1174,9 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
     if idx.size == 0:
         return None
     pb = _window_corr(y, bend)
+    # kinks at half the window's spacing, for the stretch since the last one
+    others, _ = find_peaks(np.abs(z), height=KINK_Z, distance=max(2, w // 4))
+    gap = max(2, w // 8)
     half_kink, half_norm = _kink_kernels(w // 2)[:2]
     half = _window_corr(y, half_kink) / half_norm             # slope steps at half the window
     q = max(2, w // 4)
@@ -1171,6 +1194,17 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
         # the valve moved the way the OP crept, in one step, after it had held
         way = sense != 0 and np.sign(d) == sense * np.sign(travel[i])
         held = 2.0 * w * pb[k] / bend_norm * np.sign(d) <= KINK_HELD * abs(d)
+        # over the stretch since the last kink, a valve that followed the OP
+        # would have bent the level by about the whole step, one that held not
+        # at all: where the stretch cannot tell the two (its slope change is
+        # not read to half the limit) the kink says nothing of the valve
+        before = others[(others < k - gap) & (others >= k - w)]
+        bent = _stretch_bend(y[int(before[-1]) + gap if before.size else k - w:k],
+                             noise * spread[k])
+        if bent is None or bent[1] > KINK_HELD / 2.0 * abs(d):
+            judged[i] = False
+        else:
+            held = held and bent[0] * np.sign(d) <= KINK_HELD * abs(d)
         near = half[max(0, k - w // 4):k + w // 4 + 1] * np.sign(d)
         near = near[np.isfinite(near)]
         abrupt = near.size > 0 and float(near.max()) >= KINK_ABRUPT * abs(d)
