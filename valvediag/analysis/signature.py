@@ -1149,9 +1149,9 @@ def _stretch_bend(y, noise):
         return None
     t = np.arange(m, dtype=float) - (m - 1) / 2.0
     X = np.c_[t * t, t, np.ones(m)]
-    coef = np.linalg.lstsq(X, y, rcond=None)[0]
-    se = noise * math.sqrt(float(np.linalg.inv(X.T @ X)[0, 0]))
-    return 2.0 * m * float(coef[0]), 2.0 * m * se
+    curvature = np.linalg.inv(X.T @ X)[0]          # the row of (X'X)^-1 that reads t^2
+    return (2.0 * m * float(curvature @ (X.T @ y)),
+            2.0 * m * noise * math.sqrt(float(curvature[0])))
 
 
 def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
@@ -1191,6 +1191,8 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
         travel[i] = float(np.mean(op[k - q:k]) - np.mean(op[k - w:k - w + q]))
         # a kink the OP did not drive (it stood still) is a load's: it says nothing
         judged[i] = abs(travel[i]) > travel_min
+        if not judged[i]:
+            continue
         # the valve moved the way the OP crept, in one step, after it had held
         way = sense != 0 and np.sign(d) == sense * np.sign(travel[i])
         held = 2.0 * w * pb[k] / bend_norm * np.sign(d) <= KINK_HELD * abs(d)
@@ -1203,11 +1205,11 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
                              noise * spread[k])
         if bent is None or bent[1] > KINK_HELD / 2.0 * abs(d):
             judged[i] = False
-        else:
-            held = held and bent[0] * np.sign(d) <= KINK_HELD * abs(d)
+            continue
+        held = held and bent[0] * np.sign(d) <= KINK_HELD * abs(d)
         near = half[max(0, k - w // 4):k + w // 4 + 1] * np.sign(d)
         near = near[np.isfinite(near)]
         abrupt = near.size > 0 and float(near.max()) >= KINK_ABRUPT * abs(d)
-        ok[i] = judged[i] and way and held and abrupt
+        ok[i] = way and held and abrupt
     return idx[judged], ok[judged], np.abs(travel[judged]), np.zeros(int(judged.sum()))
 
