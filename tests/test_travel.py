@@ -49,6 +49,30 @@ def test_a_parallelogram_with_sloped_sides_is_a_dead_band():
     assert t.S == pytest.approx(3.0, rel=0.2) and t.J == 0.0
 
 
+def test_slips_too_small_to_count_one_by_one_show_pooled():
+    # J = 0.9 against a position noise of 0.25: each slip is 2.5 standard
+    # deviations of a sample-to-sample difference, below the count's 4.5, so
+    # no jump is counted; over the record's 30 cycles a valve that slips fits
+    # the position steadily better than any dead band
+    op = _op()
+    for seed in (1, 2, 3):
+        t = valve_travel(_position(_sticky(op, 3.0, 0.9), noise=0.25, seed=seed), op, H)
+        assert t.toward == 0
+        assert t.verdict == "stiction", t.reason
+        assert t.slip_fit > 0.1 and t.slip_t > TRAVEL_LIMITS["slip_t"]
+        assert "show pooled" in t.reason
+
+
+def test_a_dead_band_through_the_same_noise_fits_no_pooled_slip():
+    op = _op()
+    for seed in (1, 2, 3):
+        t = valve_travel(_position(apply_valve("backlash", op, DB=3.0), noise=0.25, seed=seed),
+                         op, H)
+        assert t.verdict == "backlash", t.reason
+        # a slip jump fits worse than the dead band, block after block
+        assert t.slip_fit < 0 and t.slip_t < 0
+
+
 def _staircase(op, band):
     """A valve that stands until the OP is ``band`` away, then jumps to it (stick-slip)."""
     out = np.empty_like(op)
