@@ -50,17 +50,31 @@ def test_a_parallelogram_with_sloped_sides_is_a_dead_band():
 
 
 def test_slips_too_small_to_count_one_by_one_show_pooled():
-    # J = 0.9 against a position noise of 0.25: each slip is 2.5 standard
-    # deviations of a sample-to-sample difference, below the count's 4.5, so
-    # no jump is counted; over the record's 30 cycles a valve that slips fits
-    # the position steadily better than any dead band
+    # J = 0.9 against a position noise of 0.5: each slip is 1.3 standard
+    # deviations of a sample-to-sample difference and 2.5 of the difference of
+    # four samples' means, below the count's 4.5, so no slip is counted; over
+    # the record's 30 cycles a valve that slips fits the position steadily
+    # better than any dead band
+    op = _op()
+    for seed in (1, 3, 4):
+        t = valve_travel(_position(_sticky(op, 3.0, 0.9), noise=0.5, seed=seed), op, H)
+        assert t.toward == 0
+        assert t.verdict == "stiction", t.reason
+        assert t.slip_fit > TRAVEL_LIMITS["slip_fit"] and t.slip_t > TRAVEL_LIMITS["slip_t"]
+        assert "show pooled" in t.reason
+
+
+def test_slips_hidden_in_one_samples_noise_are_counted_on_four_samples_means():
+    # J = 0.9 against a position noise of 0.25: 2.5 standard deviations of a
+    # sample-to-sample difference (not counted), 5.1 of the difference of four
+    # samples' means (counted)
     op = _op()
     for seed in (1, 2, 3):
         t = valve_travel(_position(_sticky(op, 3.0, 0.9), noise=0.25, seed=seed), op, H)
-        assert t.toward == 0
         assert t.verdict == "stiction", t.reason
-        assert t.slip_fit > 0.1 and t.slip_t > TRAVEL_LIMITS["slip_t"]
-        assert "show pooled" in t.reason
+        assert t.step == 4 and t.toward >= 3 and t.toward >= 0.9 * t.jumps
+        assert "means of 4 samples" in t.reason
+        assert t.jump == pytest.approx(0.9, rel=0.35)
 
 
 def test_a_dead_band_through_the_same_noise_fits_no_pooled_slip():

@@ -40,6 +40,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.signal import find_peaks
 from scipy.stats import norm, poisson
 
 from ..models.valves import apply_valve
@@ -89,6 +90,10 @@ TRAVEL_LIMITS = {
 }
 #: Most samples read (the window in which the OP travels furthest).
 MAX_SAMPLES = 20_000
+#: Jumps are read sample by sample and on the means of this many samples either
+#: side: a slip smaller than one sample's noise stands out of four samples' mean
+#: (on wider means a loose valve's brief move at the OP's turn reads as a step).
+JUMP_MEANS = 4
 _JS = (0.0, 0.25, 0.5, 0.75, 1.0)
 _S_POINTS = 20
 
@@ -137,6 +142,9 @@ class ValveTravel:
         t statistic of that lower squared error over 24 consecutive blocks
         of the fitted window [-]: high where the slips lower it steadily (a
         limit cycle), low where a few stretches carry it.
+    step : int
+        Samples either side over whose means the jumps were read (1, or
+        :data:`JUMP_MEANS` where that reading stood further from noise).
     """
 
     verdict: str
@@ -154,6 +162,7 @@ class ValveTravel:
     samples: int = 0
     slip_fit: float = math.nan
     slip_t: float = math.nan
+    step: int = 1
     mv: np.ndarray | None = field(default=None, repr=False)
     op: np.ndarray | None = field(default=None, repr=False)
     jump_index: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
@@ -193,7 +202,8 @@ class ValveTravel:
                   "noise", "slip_fit", "slip_t"):
             v = float(getattr(self, k))
             out[k] = round(v, 4) if math.isfinite(v) else None
-        out.update(jumps=int(self.jumps), toward=int(self.toward), samples=int(self.samples))
+        out.update(jumps=int(self.jumps), toward=int(self.toward), samples=int(self.samples),
+                   step=int(self.step))
         return out
 
     def plot(self, ax=None):
@@ -331,6 +341,21 @@ def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) 
     a jump exceeds ``strong_z`` standard deviations; in between the kind is
     left ``'undecided'``.
 
+    The jumps are read a second time on the means of :data:`JUMP_MEANS`
+    samples either side of each sample boundary: the step between the two
+    means, less the OP's through the gain, beyond ``jump_z`` standard
+    deviations of that difference and beyond the OP's noise band through the
+    gain (a loose valve that follows the OP's noisy edge moves in steps of
+    that noise), at least ``jump_over_op`` times the step of the OP's means,
+    the position standing over the two means before and staying over the two
+    after; one jump per ``2 L`` samples, and the noise makes ``2 n / L
+    Phi(-jump_z)`` of them. A slip of one or two noise standard deviations of
+    a sample stands out of four samples' mean (on wider means a loose valve's
+    brief move at the OP's turn, while the OP's mean stands, reads as a
+    step). Of the two readings the one whose count the noise explains less
+    is kept (the wider one's tail probability doubled, for two looks at one
+    record).
+
     Slips too small to count one by one show pooled. The best valve with a
     slip jump (``J/S`` from 1/4) and the best without one (Kano's with
     ``J = 0``, the dead band) are each refined; the jump's share of the dead
@@ -367,9 +392,9 @@ def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) 
     set point) and that the OP and the position are sampled together. It
     fails where:
 
-    * the slip jump is smaller than about six noise standard deviations of
-      the position (``jump_z`` of the difference of two samples), few slips
-      are recorded and they do not show pooled: a sticky valve with a small
+    * the slip jump is smaller than about three noise standard deviations of
+      the position (``jump_z`` of the difference of four samples' means),
+      few slips are recorded and they do not show pooled: a sticky valve with a small
       ``J`` then reads as ``'backlash'`` (which it nearly is: below ``J/S``
       of about 0.2, the grid's first jump, 1/4, fits worse than none);
     * the OP swings barely further than the stick band (a level valve closed
@@ -466,6 +491,8 @@ def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) 
     count = (f"{jumps['jumps']} jumps of the position beyond its noise and the OP's move "
              f"({jumps['jumps_expected']:.2g} expected from noise), {jumps['toward']} of them "
              f"towards the OP")
+    if jumps["step"] > 1:
+        count += f", read on the means of {jumps['step']} samples either side"
     p, strong = jumps.pop("p"), jumps.pop("strong")
     slips = bool(jumps["toward"] >= lim["jumps_min"] and p < lim["jump_p"]
                  and jumps["toward"] >= lim["toward_share"] * jumps["jumps"])
@@ -577,43 +604,89 @@ def _hidden(x: np.ndarray) -> float:
 
 def _jumps(mv: np.ndarray, op: np.ndarray, noise: float, gain: float) -> dict:
     """The position's own jumps towards the OP (see :func:`valve_travel`); ``gain`` is
-    the position per unit OP, with its sign."""
+    the position per unit OP, with its sign. Read sample by sample and on the means of
+    :data:`JUMP_MEANS` samples either side; the reading the noise explains less wins."""
+    one = _jumps_at(mv, op, noise, gain, 1)
+    wide = _jumps_at(mv, op, noise, gain, JUMP_MEANS)
+    # two readings of one record: the wider one's tail probability doubled
+    wide["p"] = min(1.0, 2.0 * wide["p"])
+    return wide if wide["p"] < one["p"] else one
+
+
+def _jumps_at(mv: np.ndarray, op: np.ndarray, noise: float, gain: float, L: int) -> dict:
+    """:func:`_jumps` read on the means of ``L`` samples either side of each step."""
     lim = TRAVEL_LIMITS
     n = mv.size
     gap = gain * (op - np.median(op)) - (mv - np.median(mv))
-    dm, do = np.diff(mv), np.diff(op)
+    if L == 1:
+        dm, do = np.diff(mv), np.diff(op)
+        # a slip is vertical in the position-OP plot: the OP moved little over
+        # the sample and the one before it (a positioner that follows may answer
+        # the OP's move a sample late)
+        op_move = np.abs(do)
+        op_move[1:] = np.maximum(op_move[1:], np.abs(do[:-1]))
+        # and the valve stood before it and stays where it jumped to (a spike of
+        # the reading comes back at once): one and two samples either side, the
+        # position is within half the jump of where it was, and at least half the
+        # jump away from where it started
+        stays = np.ones(dm.size, bool)
+        for j in (1, 2):
+            after = np.full(dm.size, np.inf)
+            after[:dm.size - j] = mv[1 + j:] - mv[:mv.size - 1 - j]       # mv[k+1+j] - mv[k]
+            before = np.full(dm.size, np.inf)
+            before[j:] = mv[j:-1] - mv[:mv.size - 1 - j]                 # mv[k] - mv[k-j]
+            stays &= (np.abs(after) >= 0.5 * np.abs(dm)) & (np.abs(before) < 0.5 * np.abs(dm))
+        floor = 0.0
+    else:
+        # the step between the means of L samples before and after each sample
+        # boundary, and the same of the L samples beyond those: the valve stood
+        # over the two windows before and stays over the two after
+        (b2, b1, a1, a2), inside = _window_means(mv, L)
+        (_, ob1, oa1, _), _ = _window_means(op, L)
+        dm, op_move = a1 - b1, np.abs(oa1 - ob1)
+        do = oa1 - ob1
+        stays = (inside & (np.abs(b1 - b2) < 0.5 * np.abs(dm))
+                 & (np.abs(a2 - b1) >= 0.5 * np.abs(dm)))
+        # a loose valve that follows the OP's noisy edge moves in steps of that
+        # noise: a slip read on means must stand beyond the OP's noise band
+        floor = abs(gain) * NOISE_REVERSAL * white_noise_std(op)
     # the position's own move: what it moved beyond following the OP (a valve
     # that follows moves by the OP's move, and a jump must stand out of that)
     own = dm - gain * do
-    # a slip is vertical in the position-OP plot: the OP moved little over the
-    # sample and the one before it (a positioner that follows may answer the
-    # OP's move a sample late)
-    op_move = np.abs(do)
-    op_move[1:] = np.maximum(op_move[1:], np.abs(do[:-1]))
-    # and the valve stood before it and stays where it jumped to (a spike of
-    # the reading comes back at once): one and two samples either side, the
-    # position is within half the jump of where it was, and at least half the
-    # jump away from where it started
-    stays = np.ones(dm.size, bool)
-    for j in (1, 2):
-        after = np.full(dm.size, np.inf)
-        after[:dm.size - j] = mv[1 + j:] - mv[:mv.size - 1 - j]       # mv[k+1+j] - mv[k]
-        before = np.full(dm.size, np.inf)
-        before[j:] = mv[j:-1] - mv[:mv.size - 1 - j]                 # mv[k] - mv[k-j]
-        stays &= (np.abs(after) >= 0.5 * np.abs(dm)) & (np.abs(before) < 0.5 * np.abs(dm))
-    threshold = max(lim["jump_z"] * math.sqrt(2.0) * noise,
-                    2.0 * (abs(gain) * _hidden(op) + _hidden(mv)))
+    threshold = max(lim["jump_z"] * math.sqrt(2.0 / L) * noise,
+                    2.0 * (abs(gain) * _hidden(op) + _hidden(mv)), floor)
     is_jump = ((np.abs(own) > threshold)
                & (np.abs(dm) >= lim["jump_over_op"] * abs(gain) * op_move) & stays)
-    at = np.flatnonzero(is_jump)
+    if L == 1:
+        at = np.flatnonzero(is_jump)
+    else:
+        # one jump per slip: the largest of the steps it makes within 2 L samples
+        at, _ = find_peaks(np.r_[0.0, np.where(is_jump, np.abs(own), 0.0), 0.0],
+                           height=1e-300, distance=2 * L)
+        at = at - 1
     toward = at[np.sign(own[at]) == np.sign(gap[at])]
     # (where a compressed record raised the threshold this overstates what the
     # noise makes, which only makes slips harder to claim)
-    expected = 2.0 * (n - 1) * float(norm.sf(lim["jump_z"]))
+    expected = 2.0 * (n - 1) / L * float(norm.sf(lim["jump_z"]))
     # under noise alone half the jumps would close the gap
     p = float(poisson.sf(toward.size - 1, 0.5 * expected)) if toward.size else 1.0
     jump = float(np.median(np.abs(dm[toward])) / abs(gain)) if toward.size else math.nan
     # a jump far beyond anything noise makes (no count of noise needed)
-    strong = int(np.sum(np.abs(own[toward]) > lim["strong_z"] * math.sqrt(2.0) * noise))
+    strong = int(np.sum(np.abs(own[toward]) > lim["strong_z"] * math.sqrt(2.0 / L) * noise))
     return dict(jump=jump, jumps=int(at.size), jumps_expected=expected, toward=int(toward.size),
-                gain=gain, jump_index=toward, p=p, strong=strong)
+                gain=gain, jump_index=toward, p=p, strong=strong, step=L)
+
+
+def _window_means(x: np.ndarray, L: int) -> tuple[tuple, np.ndarray]:
+    """Means of the ``L`` samples ending ``L`` before, ending at, starting after and
+    starting ``L + 1`` after each sample ``k < n - 1``, and where all four fit."""
+    n = x.size
+    c = np.r_[0.0, np.cumsum(x)]
+    k = np.arange(n - 1)
+    inside = (k >= 2 * L - 1) & (k + 2 * L <= n - 1)
+    kk = np.clip(k, 2 * L - 1, max(2 * L - 1, n - 2 * L - 1))
+
+    def mean(lo):
+        return (c[np.clip(lo + L, 0, n)] - c[np.clip(lo, 0, n)]) / L
+
+    return (mean(kk + 1 - 2 * L), mean(kk + 1 - L), mean(kk + 1), mean(kk + 1 + L)), inside
