@@ -562,34 +562,35 @@ def _valve_fit(mv: np.ndarray, op: np.ndarray, band: float, op_range: float, noi
     families = [("kano", js, nb) for nb in (0.0, band) for js in _JS] + [("backlash", 0.0, 0.0)]
 
     def fit(family, S_values):
+        # (RMS error, band, gain, residuals) of the best band and delay
         V = _valve_of(family, op, S_values)
         best = None
         for d in (0, 1):
-            r, b = _fit_rms(mv, _delayed(V, d), burn)
+            res, b = _fit_residuals(mv, _delayed(V, d), burn)
+            r = np.sqrt(np.einsum("ij,ij->i", res, res) / res.shape[1])
             k = int(np.argmin(r))
             if best is None or r[k] < best[0]:
-                best = (float(r[k]), float(S_values[k]), float(b[k]), d)
+                best = (float(r[k]), float(S_values[k]), float(b[k]), res[k])
         return best
 
     grid = [(fit(f, S_axis), f) for f in families]
     # the best valve without a slip jump (a dead band: Kano's with J = 0 or
     # the backlash) and the best with one, each refined between its grid
     # neighbours: near the OP's swing the fit turns on a few per cent of the band
-    refined, resid = [], []
+    refined = []
     for with_jump in (False, True):
         (r, S0, *_), f = min(((g, f) for g, f in grid if (f[1] > 0) == with_jump),
                              key=lambda gf: gf[0][0])
         i = int(np.argmin(np.abs(S_axis - S0)))
         fine = np.linspace(S_axis[max(0, i - 1)], S_axis[min(S_axis.size - 1, i + 1)], 25)
-        r, S1, b, d = fit(f, fine)
-        refined.append((r, S1, f[1] * S1, b))
-        resid.append(_fit_residuals(mv, _delayed(_valve_of(f, op, S1), d), burn)[0][0])
-    (rms_db, *_), (rms_slip, *_) = refined
-    rms_nl, S_best, J_best, gain = min(refined, key=lambda x: x[0])
+        r, S1, b, res = fit(f, fine)
+        refined.append((r, S1, f[1] * S1, b, res))
+    (rms_db, *_, res_db), (rms_slip, *_, res_slip) = refined
+    rms_nl, S_best, J_best, gain, _ = min(refined, key=lambda x: x[0])
     return dict(ratio=rms_nl / rms_lin if rms_lin > 0 else 1.0,
                 linear_over_noise=rms_lin / noise, S=S_best, J=J_best, gain=gain,
                 rms_deadband=rms_db, rms_slip=rms_slip,
-                slip_t=_block_t(resid[0] ** 2 - resid[1] ** 2))
+                slip_t=_block_t(res_db ** 2 - res_slip ** 2))
 
 
 def _hidden(x: np.ndarray) -> float:
@@ -643,8 +644,8 @@ def _jumps_at(mv: np.ndarray, op: np.ndarray, noise: float, gain: float, L: int)
         # over the two windows before and stays over the two after
         (b2, b1, a1, a2), inside = _window_means(mv, L)
         (_, ob1, oa1, _), _ = _window_means(op, L)
-        dm, op_move = a1 - b1, np.abs(oa1 - ob1)
-        do = oa1 - ob1
+        dm, do = a1 - b1, oa1 - ob1
+        op_move = np.abs(do)
         stays = (inside & (np.abs(b1 - b2) < 0.5 * np.abs(dm))
                  & (np.abs(a2 - b1) >= 0.5 * np.abs(dm)))
         # a loose valve that follows the OP's noisy edge moves in steps of that
