@@ -87,6 +87,22 @@ def test_a_dead_band_through_the_same_noise_fits_no_pooled_slip():
         assert t.slip_fit < 0 and t.slip_t < 0
 
 
+def test_a_stick_band_as_wide_as_the_ops_swing_is_found():
+    # the OP swings 3.2 and the valve sticks over 3.0 of it (a sawtooth's valve
+    # slips at the top of each rise): the band is searched up to the OP's
+    # 1-99 % range, and a valve with a slip fits better than a dead band
+    n = 6000
+    t = np.arange(n) * H
+    for seed in (1, 2, 3):
+        rng = np.random.default_rng(seed)
+        op = (50.0 + 1.6 * 2 / np.pi * np.arcsin(np.sin(2 * np.pi * t / 400.0))
+              + rng.normal(0, 0.02, n))
+        tv = valve_travel(_position(_sticky(op, 3.0, 1.5), noise=0.5, seed=seed), op, H)
+        assert tv.verdict == "stiction", tv.reason
+        assert tv.S == pytest.approx(3.0, rel=0.03) and tv.J > 0
+        assert tv.slip_fit > TRAVEL_LIMITS["slip_fit"]
+
+
 def _staircase(op, band):
     """A valve that stands until the OP is ``band`` away, then jumps to it (stick-slip)."""
     out = np.empty_like(op)

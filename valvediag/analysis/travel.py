@@ -312,13 +312,14 @@ def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) 
     travels furthest: the linear fit allows a gain, an offset and a delay of
     one sample (a positioner answers within a sample or two); the valve
     models are Kano's with ``S`` on 20 points from the OP's noise band to
-    90 % of its range and ``J/S`` in 0, 1/4, ..., 1, each with and without an
-    actuator that ignores OP noise within six noise standard deviations, and
-    a dead band of the same widths that follows the OP's noise at its edge
-    (Kano's valve with ``J = 0`` sticks at each of the noise's reversals); they
-    need an OP that travels beyond four noise bands (otherwise only the
-    linear fit is made). The first 5 % of the window is not scored (the
-    valve's starting state is not known).
+    90 % of its range, and at 95 and 100 % (a valve that slips at the top of
+    the OP's swing, as a sawtooth's does), and ``J/S`` in 0, 1/4, ..., 1,
+    each with and without an actuator that ignores OP noise within six noise
+    standard deviations, and a dead band of the same widths that follows the
+    OP's noise at its edge (Kano's valve with ``J = 0`` sticks at each of the
+    noise's reversals); they need an OP that travels beyond four noise bands
+    (otherwise only the linear fit is made). The first 5 % of the window is
+    not scored (the valve's starting state is not known).
 
     The jumps are counted over the whole stretch. A jump is a move of the
     position beyond :data:`TRAVEL_LIMITS`'s ``jump_z`` standard deviations
@@ -400,7 +401,7 @@ def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) 
     * the OP swings barely further than the stick band (a level valve closed
       against a net inflow slips at the top of each of the OP's rises from
       its limit): where the model places a slip then turns on a few per cent
-      of ``S``, and the pooled slip does not show;
+      of ``S``, and a small slip may not show pooled;
     * the record is sampled more slowly than the controller runs: a slip
       happens at the OP's turn, which the record straddles, so the fitted
       valve model misses slips and its ``J`` comes out low (the jump count,
@@ -555,7 +556,8 @@ def _valve_fit(mv: np.ndarray, op: np.ndarray, band: float, op_range: float, noi
     if not valves:
         return dict(ratio=1.0, linear_over_noise=rms_lin / noise, S=math.nan, J=math.nan,
                     gain=float(b_lin[0]))
-    S_axis = np.geomspace(max(band, op_range / 200.0), 0.9 * op_range, _S_POINTS)
+    S_axis = np.r_[np.geomspace(max(band, op_range / 200.0), 0.9 * op_range, _S_POINTS),
+                   0.95 * op_range, op_range]
     # families: Kano's valve at each J/S, with and without a noise band, and a
     # dead band that follows the OP's noise at its edge (Kano's valve with
     # J = 0 sticks at every reversal of the noise instead)
