@@ -446,3 +446,56 @@ def test_loop_sense_reads_which_way_the_op_moves_the_pv():
     assert loop_sense(pv, op) == -1.0
     flat = np.full(500, 50.0)
     assert loop_sense(flat, flat) == 0.0
+
+
+def _recorded_flow_loop(valve, valve_params=None, load=None, seed=1, h=5.0):
+    """A PI flow loop run at half the record's sample time and recorded every
+    second sample, with measurement noise fed back (tau 11.9 s, lag 1.4 s,
+    dead time 0.7 s, kc 0.65, ti 14.2 s at h = 5 s; tau 6.2 s at h = 2 s)."""
+    hc = h / 2.0
+    n = int(3 * 3600 / hc)
+    dyn = (dict(tau=11.9, lag=1.4, dead_time=0.7, kc=0.65, ti=14.2) if h == 5.0 else
+           dict(tau=6.2, lag=0.0, dead_time=0.4, kc=0.685, ti=5.65))
+    sigma = 0.03
+    sim = simulate_loop(sample_time=hc, n_samples=n, sp=50.0, process="self-regulating",
+                        valve=valve, valve_params=valve_params, sp_step=1.0, sp_step_time=60.0,
+                        noise_std=sigma, valve_noise_band=6 * dyn["kc"] * sigma if
+                        valve == "kano" else 0.0,
+                        load_profile=None if load is None else load(np.arange(n) * hc),
+                        seed=seed, **dyn)
+    k0 = int(3600 / hc)
+    return sim.pv[k0::2], sim.op[k0::2]
+
+
+@pytest.mark.parametrize("h, S, J", [(5.0, 3.1, 2.2), (2.0, 2.1, 2.0)])
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_sticky_flow_cycle_whose_band_is_most_of_the_ops_swing_is_stiction(h, S, J, seed):
+    from valvediag.analysis.oscillation import detect_oscillation
+
+    # the valve slips at the top of each OP swing, and the record keeps every
+    # second sample: a model valve slips only for bands within a sample's OP
+    # travel of the swing (or smaller, with a dead time making up the
+    # difference); a grid 30-45 % apart misses that ridge and reads a linear
+    # valve behind a long dead time on 3 of these 6 loops
+    pv, op = _recorded_flow_loop("kano", {"S": S, "J": J}, seed=seed, h=h)
+    osc = detect_oscillation(pv, h)
+    s = valve_signature(pv, op, h, process="self-regulating", period=osc.period)
+    assert s.verdict == "stiction", s.reason
+    assert s.gain > 0.6 and s.S == pytest.approx(S, rel=0.3)
+
+
+@pytest.mark.parametrize("h", [5.0, 2.0])
+@pytest.mark.parametrize("shape", ["sine", "clipped"])
+def test_a_healthy_flow_loop_under_a_load_at_a_sticky_cycles_period_is_linear(h, shape):
+    from valvediag.analysis.oscillation import detect_oscillation
+
+    period, amp = (115.0, 2.0) if h == 5.0 else (36.0, 1.5)
+
+    def load(t):
+        x = amp * np.sin(2 * np.pi * t / period)
+        return x if shape == "sine" else np.clip(1.6 * x, -amp, amp)
+
+    pv, op = _recorded_flow_loop("linear", load=load, h=h)
+    osc = detect_oscillation(pv, h)
+    s = valve_signature(pv, op, h, process="self-regulating", period=osc.period)
+    assert s.verdict == "linear", s.reason

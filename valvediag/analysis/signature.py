@@ -90,6 +90,10 @@ MAX_SAMPLES = 3000
 #: OP noise multiples that are not a reversal of the actuator.
 NOISE_REVERSAL = 6.0
 _JS = (0.0, 0.25, 0.5, 0.75, 1.0)
+#: Stick bands searched as shares of the OP's 1-99 % range, beside the
+#: geometric grid over the whole range: 5 % apart from 40 % to 100 % (see
+#: :func:`valve_signature`, Notes).
+_SWING_SHARES = np.geomspace(0.4, 1.0, 19)
 _DELAYS = (0, 1, 2, 4, 8, 16)
 _BLOCKS = 24
 
@@ -361,6 +365,18 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     delays the response like a lag does, and the comparison must not credit
     the valve with the process's lag).
 
+    The stick band ``S`` is searched on a geometric grid over the OP's range
+    and, beside it, at 40-100 % of the OP's 1-99 % range 5 % apart. In a
+    sticky valve's limit cycle the slip ends each OP swing (the PV jumps and
+    the controller turns back), so the band is most of the swing; a record
+    that keeps every second controller sample misses the OP's turning
+    sample, and a model valve slips on the recorded OP only for a band within
+    about one sample's OP travel of the swing, or for a smaller band with a
+    dead time that delays the slip as much. That ridge is a few percent
+    wide: on a grid 30-45 % apart the best sticky valve fell off it and read
+    a linear valve behind a long dead time (5 of 40 sticky flow cycles of
+    ``benchmarks/bench_realistic.py``'s study seeds 10-14).
+
     It assumes one valve, one process and a load that changes slowly or in
     a way no valve model mimics. It fails where:
 
@@ -468,7 +484,8 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
 
     # a) a coarse valve grid over every (dead time, lag) within the budget:
     # the best dynamics of a dead band and of a valve with a slip jump
-    Sc = np.geomspace(max(0.1, 0.5 * band), max(1.2 * op_range, 0.2), 12)
+    swing = op_range * _SWING_SHARES
+    Sc = np.union1d(np.geomspace(max(0.1, 0.5 * band), max(1.2 * op_range, 0.2), 12), swing)
     Jc = np.r_[0.0 * Sc, 0.5 * Sc, Sc]
     _, tr, _, _, _ = fit_valves(np.r_[Sc, Sc, Sc], Jc, pairs)
     near = set()
@@ -480,7 +497,8 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
             near |= {(d0, t) for t in (t0, 0.7 * t0, 1.4 * t0) if d0 * h + t <= budget}
     sub = sorted(near)
     # b) the fine valve grid at those dynamics
-    S_grid = np.geomspace(max(0.1, 0.5 * band), max(1.2 * op_range, 0.2), 16)
+    S_grid = np.union1d(np.geomspace(max(0.1, 0.5 * band), max(1.2 * op_range, 0.2), 16),
+                        swing)
     SS, JJ = np.meshgrid(S_grid, _JS, indexing="ij")
     SS, JJ = np.r_[0.0, SS.ravel()], np.r_[0.0, (SS * JJ).ravel()]      # row 0: linear
     cand = _Candidates(SS, JJ, sub, *fit_valves(SS, JJ, sub))
