@@ -409,3 +409,21 @@ def test_a_sticky_levels_labelled_slips_are_the_ones_its_record_can_show():
     assert _visible_slope_slips(mv, 2.0, 1.0 / 200.0, 1.0, 1.0) == 0
     loop = draw_loop("level-stiction-events", np.random.default_rng([1, 3, 0]))
     assert loop.params["slips"] >= 3 and loop.truth == "stiction"
+
+
+
+def test_a_sticky_flows_slips_are_counted_once_however_many_samples_they_span():
+    from valvediag.synth.cases import _events, draw_loop
+
+    # one slip through a 3 s lag, sampled every second, moves the PV by more
+    # than six noise sigma on four samples running: one slip, not four
+    step = 2.0 * (1 - np.exp(-np.arange(100) / 3.0))
+    pv = np.r_[np.full(100, 50.0), 50.0 + step]
+    assert np.count_nonzero(np.abs(np.diff(pv)) > 6 * 0.01 * np.sqrt(2)) >= 4
+    assert _events(pv, 0.01) == 1
+    # three slips with rests between them are three
+    assert _events(np.r_[pv, 52.0 - step, 50.0 + step], 0.01) == 3
+    assert _events(np.full(300, 50.0), 0.01) == 0
+    # the benchmark's sticky flows without a cycle show three slips at least
+    loop = draw_loop("flow-stiction-events", np.random.default_rng([1, 5, 0]))
+    assert loop.params["slips"] >= 3 and loop.truth == "stiction"
