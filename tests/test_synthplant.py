@@ -427,3 +427,15 @@ def test_a_sticky_flows_slips_are_counted_once_however_many_samples_they_span():
     # the benchmark's sticky flows without a cycle show three slips at least
     loop = draw_loop("flow-stiction-events", np.random.default_rng([1, 5, 0]))
     assert loop.params["slips"] >= 3 and loop.truth == "stiction"
+
+
+def test_a_sawtooths_level_stays_within_its_span():
+    from valvediag.synth.cases import draw_loop
+
+    # a valve closed against a net inflow it cannot hold lets the level run
+    # away (study seed 13 drew one to 870 % of span, its OP pinned at 0):
+    # such draws are redrawn
+    for i in (2, 3):
+        loop = draw_loop("level-stiction-sawtooth", np.random.default_rng([13, 2, i]))
+        assert 0.0 <= loop.pv.min() and loop.pv.max() <= 100.0
+        assert np.ptp(np.percentile(loop.op, [1, 99])) > 0.5

@@ -33,7 +33,9 @@ that causes: ``valve_noise_band``), then recorded as a historian would: every
 second sample, 1-10 s, as a 1-4 h snapshot around an event or a full day,
 some exception-and-swinging-door compressed. Every draw is rejected and
 redrawn until the record shows its class (enough cycles or events, at least
-15 samples per period), so the truth is what the data can show.
+15 samples per period, counted once each), so the truth is what the data can
+show, and until the PV stays within its 0-100 % span (a level the valve at
+its limit cannot hold runs away, which is no record of any class).
 """
 from __future__ import annotations
 
@@ -388,6 +390,10 @@ def _try(klass: str, rng: np.random.Generator):
                         noise_std=sigma, valve_noise_band=band, seed=int(rng.integers(1 << 31)))
     pv, op, sp = run.pv[k0:], run.op[k0:], run.sp[k0:]
     pv, op, sp = _record(pv, op, sp, rng, compressed, sigma)
+    if pv.min() < 0.0 or pv.max() > 100.0:
+        # a level that leaves its span ran away (the valve at its limit could
+        # not hold it): no record of the class, and no record at all
+        return None
     mv = _position_record(run.mv[k0::2][:pv.size], pv, compressed)
     if klass == "level-stiction-events":
         # of the valve's slips, those the level's record shows: at its samples,
