@@ -411,7 +411,6 @@ def test_a_sticky_levels_labelled_slips_are_the_ones_its_record_can_show():
     assert loop.params["slips"] >= 3 and loop.truth == "stiction"
 
 
-
 def test_a_sticky_flows_slips_are_counted_once_however_many_samples_they_span():
     from valvediag.synth.cases import _events, draw_loop
 

@@ -391,8 +391,8 @@ def _try(klass: str, rng: np.random.Generator):
     pv, op, sp = run.pv[k0:], run.op[k0:], run.sp[k0:]
     pv, op, sp = _record(pv, op, sp, rng, compressed, sigma)
     if pv.min() < 0.0 or pv.max() > 100.0:
-        # a level that leaves its span ran away (the valve at its limit could
-        # not hold it): no record of the class, and no record at all
+        # a PV that leaves its span ran away (a level that the valve at its
+        # limit could not hold): no record of the class, and no record at all
         return None
     mv = _position_record(run.mv[k0::2][:pv.size], pv, compressed)
     if klass == "level-stiction-events":
