@@ -212,3 +212,40 @@ def test_a_step_is_not_a_spike():
     x[30] = -9999.0
     y, n = despike(x)
     assert n == 1 and np.isnan(y[30])
+
+
+def test_a_sticky_flows_irregular_slips_are_read_though_the_amplitude_wanders():
+    from valvediag.synth.cases import draw_loop
+
+    # slow integral action and a wandering load: the valve slips every few
+    # minutes, each slip a cycle of its own, and the swings vary as a ringing
+    # loop's do; the slips make up the cycle (once or twice each)
+    loop = draw_loop("flow-stiction-events", np.random.default_rng([2, 5, 0]))
+    d = classify_loop(loop.pv, loop.op, loop.sp, sample_time=loop.sample_time,
+                      process_type="self-regulating")
+    assert d.evidence["amplitude_variation"] >= 0.3
+    assert d.verdict == "stiction", d.reason
+    assert d.evidence["stick_slip"]["consistent"] >= 0.5 * d.cycles
+
+
+@pytest.mark.parametrize("h, tau, theta, kc, seed", [(2.0, 3.0, 5.0, 0.75, 3),
+                                                     (5.0, 11.0, 14.0, 0.98, 2),
+                                                     (1.0, 9.0, 4.0, 2.82, 2),
+                                                     (1.0, 9.0, 4.0, 2.82, 3)])
+def test_a_ringing_flow_loops_few_slip_like_turns_do_not_make_a_valve_fault(h, tau, theta, kc,
+                                                                             seed):
+    from valvediag.analysis.signature import stick_slip_events
+
+    # a healthy flow loop at 80 % of its ultimate gain, ringing under a random
+    # load for a day: among thousands of turns a few pass for slips
+    sim = simulate_loop(sample_time=h / 2, n_samples=int(28 * 3600 / (h / 2)), sp=50.0,
+                        process="self-regulating", tau=tau, kc=kc, ti=tau, dead_time=theta,
+                        valve="linear", load_noise_std=0.5, seed=seed)
+    k0 = int(4 * 3600 / (h / 2))
+    pv, op = sim.pv[k0::2], sim.op[k0::2]
+    pv = pv + np.random.default_rng(seed).normal(0, 0.01 * np.ptp(pv), pv.size)
+    sp = np.full(pv.size, 50.0)
+    assert stick_slip_events(pv, op, h, process="self-regulating", sp=sp).found
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="self-regulating")
+    assert d.verdict == "linear-oscillation", d.reason
+    assert d.cycles > 1000

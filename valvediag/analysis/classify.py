@@ -17,7 +17,12 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    the PV that follows the OP (:func:`follows_op`), or cycles whose
    amplitude wanders as a noise-driven resonance's does
    (:attr:`~valvediag.analysis.oscillation.Oscillation.amplitude_variation`:
-   a valve's limit cycle keeps its amplitude) says so.
+   a valve's limit cycle keeps its amplitude) says so; on a self-regulating
+   process the wandering cycle is still a sticky or loose valve's where its
+   valve events make it up, at least one event per two cycles
+   (:data:`RESONANCE_SLIPS`: a sticky valve slipping every few minutes
+   behind slow integral action makes an irregular cycle of its slips, where
+   a ringing loop's thousands of turns pass for a slip a few times a day).
 4. ``stiction``, ``backlash`` or ``undecided``. On an integrating process the
    Backlash Index decides, as the paper does, and the valve signature
    (:func:`valvediag.analysis.signature.valve_signature`) settles a BI
@@ -77,6 +82,10 @@ FOLLOWS_RESOLUTION = 6.0
 #: or more (:attr:`Oscillation.amplitude_variation`) is a linear loop's
 #: noise-driven resonance, not a valve's limit cycle.
 RESONANCE_VARIATION = 0.3
+#: ... unless, on a self-regulating process, valve events make up the cycle:
+#: at least this many slips or take-ups per cycle (a sticky valve slips once
+#: or twice a cycle; a ringing loop's turns pass for one now and then).
+RESONANCE_SLIPS = 0.5
 #: A Backlash Index reading of rounded turns may be a lag's, not the valve's,
 #: when the turns fitted behind a first-order lag read at most this BI ...
 LAG_SHARP_BI = 1.5
@@ -560,12 +569,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         quiet = ("no-oscillation", 0.6 + 0.3 * min(1.0, max(0.0, 1.0 - osc.regularity)),
                  f"no regular oscillation (regularity {osc.regularity:.2f}, "
                  f"autocorrelation at one period {osc.acf_at_period:.2f})")
-    def valve_events(screened: str = "unknown"):
+    def valve_events(screened: str = "unknown", min_events: float = 0.0):
         """A sticky or loose valve shown by its slips or take-ups, or None.
 
         ``screened``: the process type the data test found, tried alone when
         the registry has none (a square load's turns on a flow are no level's
-        slips)."""
+        slips). ``min_events``: the fewest valve events that count."""
         ev_sp = sp[a:b] if sp is not None else None
         kinds = (process_type,) if process_type != "unknown" else \
             (screened,) if screened != "unknown" else ("self-regulating", "integrating")
@@ -573,7 +582,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             kinds = tuple(k for k in kinds if k != "integrating")
         for kind in kinds:
             slips = stick_slip_events(x, u, h, process=kind, sp=ev_sp)
-            if slips.found:
+            if slips.found and slips.consistent >= min_events:
                 ev.update(stick_slip=slips.as_dict(), process_screen=kind)
                 src = "loop registry" if process_type != "unknown" else "assumed"
                 what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
@@ -649,7 +658,13 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     amp_cv = osc.amplitude_variation
     ev["amplitude_variation"] = amp_cv
     if np.isfinite(amp_cv) and amp_cv >= RESONANCE_VARIATION:
-        # (its valve events are not read: a ringing loop's turns pass for them)
+        # a sticky flow valve's slips make an irregular cycle of their own, at
+        # least one slip a cycle; a ringing loop's turns pass for a slip only
+        # now and then (a level's kinks are not read here)
+        found = valve_events("self-regulating", RESONANCE_SLIPS * osc.cycles) if selfreg \
+            else None
+        if found is not None:
+            return found
         return verdict(
             "linear-oscillation", c_data * (0.5 + 0.4 * min(1.0, amp_cv / 0.5)),
             f"the cycles' amplitude wanders (variation {amp_cv:.2f} of the mean swing) as a "
