@@ -55,6 +55,36 @@ def test_robust_recovers_the_rounding_of_its_own_model():
     assert r.verdict == "backlash"
 
 
+def hyperbolic_sawtooth(t, P, w, rise=0.15):
+    """Sawtooth of unit amplitude, rising over ``rise`` of the period and falling
+    over the rest, whose corners are the robust method's model: the slope turns
+    as ``tau / sqrt(tau^2 + w^2)`` between the ramps' slopes."""
+    R, F = rise * P, (1 - rise) * P
+    m, b = 0.5 * (1 / R - 1 / F), 0.5 * (1 / R + 1 / F)
+    ph = t % P
+    near_peak = (ph >= R / 2) & (ph < R + F / 2)
+    tau = np.where(near_peak, ph - R, np.where(ph < R / 2, ph, ph - P))
+    g = tau / np.sqrt(tau ** 2 + w ** 2)
+    slope = m - b * np.where(near_peak, g, -g)
+    return np.cumsum(slope) * (t[1] - t[0])
+
+
+@pytest.mark.parametrize("w_share,expected", [(0.005, "stiction"), (0.03, "backlash")])
+def test_robust_bi_of_a_sawtooth_reads_its_rounding_not_its_unequal_ramps(w_share, expected):
+    # a level under a net inflow cycles in a sawtooth (fast rise, slow fall);
+    # its corners are as round as a triangle's with the same rounding width,
+    # and so is its BI: the fast ramp must not shift the chord onto the slow
+    # side and read the rounding several times over (a sticky valve's corner
+    # behind a lag of 0.5 % of the period read BI 3-4 before)
+    h, P = 1.0, 500.0
+    t = np.arange(12000) * h
+    r = backlash_index(hyperbolic_sawtooth(t, P, w_share * P), h)
+    rho = r.rounding * NREF
+    assert r.rounding == pytest.approx(w_share, rel=0.3)   # grid of widths ~30 % apart
+    assert r.bi == pytest.approx(1 / (np.sqrt(1 + rho ** 2) - rho), rel=0.1)
+    assert r.verdict == expected
+
+
 @pytest.mark.parametrize("method", ["paper", "robust"])
 def test_clean_simulations(method):
     kw = dict(kc=2.0, ti=20.0, tau=20.0, sample_time=0.1, duration=3000, sp_step=1.0)

@@ -38,7 +38,10 @@ Two estimators are provided.
     so the noise that made a sample the largest does not sharpen the corner.
     ``theta_peak`` is the angle of the chord from the fitted apex to the
     fitted curve at ``P/100`` (what the literal method would see at 100
-    samples per period on noise-free data); ``theta_middle`` comes from a
+    samples per period on noise-free data), taken on the corner with its tilt
+    left out: a sawtooth's unequal ramps (a level under a net inflow) would
+    move the apex onto the slow side and read the same rounding as two to
+    three times the BI of a triangle's; ``theta_middle`` comes from a
     straight-line fit around each middle point. Its limits, 2.2 and 2.4, are
     calibrated on simulations of the paper's parameter ranges with noise and
     coarse sampling (``benchmarks/bench_bi_sweep.py``); the paper's 1.5 and 3
@@ -524,9 +527,13 @@ def robust_bi_kernel(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
         ta = _model_apex(y0, m, b, c, w, -qbs[a] * 0.5, qas[a] * 0.5)
         if not np.isfinite(ta):
             continue
-        f0 = _apex_model(ta, y0, m, b, c, w)
-        fl = _apex_model(ta - delta, y0, m, b, c, w)
-        fr = _apex_model(ta + delta, y0, m, b, c, w)
+        # the chords of the same corner between ramps of equal slope (the
+        # corner's tilt m left out): how rounded the turn is, however unequal
+        # its two ramps (a sawtooth's fast side would otherwise shift the
+        # apex onto the slow side and read its rounding several times over)
+        f0 = _apex_model(0.0, y0, 0.0, b, c, w)
+        fl = _apex_model(-delta, y0, 0.0, b, c, w)
+        fr = _apex_model(delta, y0, 0.0, b, c, w)
         thp[a] = 0.5 * (_angle((f0 - fl) / delta, unit) + _angle((f0 - fr) / delta, unit))
         apos[a] = (ai[a] + sh + ta) * r
     # middle slopes: straight-line fit over +-P/20 around the mid-level point
