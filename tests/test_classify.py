@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from valvediag import VERDICTS, classify_loop, simulate_loop
+from valvediag.analysis.bi import THRESHOLDS
 from valvediag.analysis.oscillation import detect_oscillation
 from valvediag.paper.scenarios import draw_cases, record
 
@@ -249,3 +250,32 @@ def test_a_ringing_flow_loops_few_slip_like_turns_do_not_make_a_valve_fault(h, t
     d = classify_loop(pv, op, sp, sample_time=h, process_type="self-regulating")
     assert d.verdict == "linear-oscillation", d.reason
     assert d.cycles > 1000
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_compressed_level_under_a_triangular_load_is_not_called_sticky(seed):
+    # a level integrating a triangular load runs in parabolic arcs; stored by
+    # swinging door, the arcs become straight lines that meet at sharp
+    # corners, so the Backlash Index reads the turns as a slip's. The ramps
+    # are curved and a linear valve explains the valve position the PV's
+    # slope implies: the load, not the valve (a benchmark level read sticky
+    # this way once the index read a corner's rounding apart from its tilt)
+    from valvediag.synth.plant import exception_deadband, swinging_door
+
+    h, n = 10.0, 2880
+    t = np.arange(n) * h / 2
+    load = 1.5 * (4 * np.abs((t / 180.0) % 1 - 0.5) - 1)
+    sim = simulate_loop(kc=1.3, ti=500.0, tau=330.0, process="integrating", sample_time=h / 2,
+                        n_samples=n, sp=50.0, load=50.0, dead_time=10.0, valve="linear",
+                        load_profile=load, seed=seed)
+    rng = np.random.default_rng(seed)
+    pv = sim.pv[::2] + rng.normal(0, 0.03 * np.ptp(sim.pv), n // 2)
+    dev = max(0.01 * np.subtract(*np.percentile(pv, [99, 1])), 0.06 * np.ptp(sim.pv))
+    exc = np.flatnonzero(exception_deadband(pv, dev / 2))
+    keep = exc[swinging_door(pv[exc], dev, t=exc.astype(float))]
+    pv = np.interp(np.arange(pv.size, dtype=float), keep, pv[keep])
+    d = classify_loop(pv, sim.op[::2], sample_time=h, process_type="integrating",
+                      pv_compressed=True)
+    assert d.bi <= THRESHOLDS["robust"][0]             # the corners read sharp
+    assert d.evidence["ramp_curvature"] > 0.011         # but the ramps are curved
+    assert d.verdict == "linear-oscillation", d.reason

@@ -26,7 +26,10 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
 4. ``stiction``, ``backlash`` or ``undecided``. On an integrating process the
    Backlash Index decides, as the paper does, and the valve signature
    (:func:`valvediag.analysis.signature.valve_signature`) settles a BI
-   between its limits; on a self-regulating process (a flow, pressure,
+   between its limits (its sharp turns give way only where the ramps are
+   curved and a linear valve explains the valve position the PV's slope
+   implies: a load's turns, stored by swinging door, meet at sharp corners
+   too); on a self-regulating process (a flow, pressure,
    temperature), where the BI does not apply, the valve signature decides.
 
 Where the valve's position is recorded (``mv``), it is read against the OP
@@ -702,16 +705,20 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return verdict("insufficient-data", 0.6, f"the Backlash Index could not be measured: {bres.reason}",
                        process_screen=pscreen, shape=shape, backlash=bres, **common)
     lo, hi = bres.thresholds
-    # the valve signature checks a rounded-apex (backlash) or an undecided
-    # reading: a disturbance or a ringing loop rounds a PV's peaks too. Sharp
-    # turns (stiction) are the paper's own evidence and cost no fit.
-    sig = ValveSignature(process="integrating", verdict="unknown",
-                         reason="not read: the Backlash Index finds sharp turns")
-    if bres.verdict != "stiction":
-        sig = valve_signature(x, u, h, process="integrating", period=osc.period)
-        ev["signature"] = sig.as_dict()
+    # the valve signature checks every reading: a disturbance or a ringing
+    # loop rounds a PV's peaks too, and a load turns a level as sharply as a
+    # slip does. Sharp turns (stiction) are the paper's own evidence: they give
+    # way where the implied valve position follows the OP (:func:`follows_op`),
+    # or where the PV does not run in the straight ramps of a valve at rest and
+    # a linear valve explains the implied position as :func:`follows_op` asks
+    # (a load's turns read at fewer samples per period than it resolves), not
+    # where a linear signature merely fits poorly beside curved ramps
+    sig = valve_signature(x, u, h, process="integrating", period=osc.period)
+    ev["signature"] = sig.as_dict()
     curved = np.isfinite(sev["ramp_curvature"]) and sev["ramp_curvature"] >= RAMP_CURVATURE_MAX
-    if not valve_faulty and (follows_op(sig, osc.period) or (curved and sig.verdict == "linear")):
+    curved_linear = curved and sig.verdict == "linear" and (
+        bres.verdict != "stiction" or (sig.r2_linear >= FOLLOWS_R2 and sig.gain < FOLLOWS_GAIN))
+    if not valve_faulty and (follows_op(sig, osc.period) or curved_linear):
         why = (f"the valve position implied by the PV slope follows the OP (held-out R2 "
                f"{sig.r2_linear:.2f} with a linear valve; a sticky or loose valve removes only "
                f"{max(0.0, 100 * sig.gain):.0f}% of the rest)")
