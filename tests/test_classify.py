@@ -250,6 +250,10 @@ def test_a_ringing_flow_loops_few_slip_like_turns_do_not_make_a_valve_fault(h, t
     d = classify_loop(pv, op, sp, sample_time=h, process_type="self-regulating")
     assert d.verdict == "linear-oscillation", d.reason
     assert d.cycles > 1000
+    # the events are kept as evidence and said, though they name no fault
+    few = d.evidence["stick_slip_too_few"]
+    assert 0 < few["consistent"] < few["needed"] == pytest.approx(0.5 * d.cycles, abs=0.1)
+    assert f"{few['consistent']} valve events in" in d.reason
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -585,6 +585,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             kinds = tuple(k for k in kinds if k != "integrating")
         for kind in kinds:
             slips = stick_slip_events(x, u, h, process=kind, sp=ev_sp)
+            if slips.found and slips.consistent < min_events:
+                # too few to make up the cycle: kept as evidence, not a verdict
+                ev["stick_slip_too_few"] = dict(slips.as_dict(), process=kind,
+                                                needed=round(float(min_events), 1))
             if slips.found and slips.consistent >= min_events:
                 ev.update(stick_slip=slips.as_dict(), process_screen=kind)
                 src = "loop registry" if process_type != "unknown" else "assumed"
@@ -668,11 +672,14 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             else None
         if found is not None:
             return found
+        few = ev.get("stick_slip_too_few")
+        also = (f" ({few['consistent']} valve events in {osc.cycles:.0f} cycles, too few to make "
+                "up the cycle)") if few else ""
         return verdict(
             "linear-oscillation", c_data * (0.5 + 0.4 * min(1.0, amp_cv / 0.5)),
             f"the cycles' amplitude wanders (variation {amp_cv:.2f} of the mean swing) as a "
-            "noise-driven resonance's does, where a valve's limit cycle keeps its amplitude: "
-            "review the tuning or trace an external disturbance", process_screen=pscreen,
+            "noise-driven resonance's does, where a valve's limit cycle keeps its amplitude"
+            f"{also}: review the tuning or trace an external disturbance", process_screen=pscreen,
             shape=shape, **common)
     if selfreg:
         src = "loop registry" if process_type == "self-regulating" else \
