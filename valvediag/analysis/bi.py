@@ -1003,12 +1003,14 @@ def lagged_turns(bres: BacklashIndex) -> LaggedTurns | None:
     read through the noise and the sampling of a historian, can be fitted
     about as well by a shorter turn behind a lag, and small changes in the
     record move the fit between the two. Of the sticky level valves of the
-    realistic benchmark (``benchmarks/bench_realistic.py``, both sets) whose
-    BI reads backlash or undecided, 11 of 17 read as sharp turns (BI at
-    most 1.5) behind a lag of at most 5 % of the period; so do 1 of its 20
-    loose level valves and 1 of the 18 loose valves of the synthetic plants
-    the scan's tests use, which have no lag at all. The result is therefore
-    evidence that a BI reading of backlash may be a lag's, not a verdict.
+    realistic benchmark (``benchmarks/bench_realistic.py``, both development
+    sets, 10 loops per class) whose BI reads backlash or undecided, 8 of 14
+    read as sharp turns (BI at most 1.5) behind a lag of at most 5 % of the
+    period (11 of 17 before the index read a corner apart from its tilt); so
+    do 1 of its 20 loose level valves and 1 of the 18 loose valves of the
+    synthetic plants the scan's tests use, which have no lag at all. The
+    result is therefore evidence that a BI reading of backlash may be a
+    lag's, not a verdict.
 
     References
     ----------
