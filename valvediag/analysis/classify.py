@@ -712,19 +712,22 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return verdict("insufficient-data", 0.6, f"the Backlash Index could not be measured: {bres.reason}",
                        process_screen=pscreen, shape=shape, backlash=bres, **common)
     lo, hi = bres.thresholds
-    # the valve signature checks every reading: a disturbance or a ringing
-    # loop rounds a PV's peaks too, and a load turns a level as sharply as a
-    # slip does. Sharp turns (stiction) are the paper's own evidence: they give
-    # way where the implied valve position follows the OP (:func:`follows_op`),
-    # or where the PV does not run in the straight ramps of a valve at rest and
-    # a linear valve explains the implied position as :func:`follows_op` asks
-    # (a load's turns read at fewer samples per period than it resolves), not
-    # where a linear signature merely fits poorly beside curved ramps
-    sig = valve_signature(x, u, h, process="integrating", period=osc.period)
-    ev["signature"] = sig.as_dict()
+    # the valve signature checks a rounded-apex (backlash) or an undecided
+    # reading: a disturbance or a ringing loop rounds a PV's peaks too. Sharp
+    # turns (stiction) are the paper's own evidence and cost no fit where the
+    # PV runs in the straight ramps of a valve at rest; on curved ramps (a
+    # load's turns, stored by swinging door, meet at sharp corners too) they
+    # give way where a linear valve explains the implied valve position as
+    # :func:`follows_op` asks, not where a linear signature merely fits poorly
     curved = np.isfinite(sev["ramp_curvature"]) and sev["ramp_curvature"] >= RAMP_CURVATURE_MAX
+    sharp = bres.verdict == "stiction"
+    sig = ValveSignature(process="integrating", verdict="unknown",
+                         reason="not read: the Backlash Index finds sharp turns on straight ramps")
+    if curved or not sharp:
+        sig = valve_signature(x, u, h, process="integrating", period=osc.period)
+        ev["signature"] = sig.as_dict()
     curved_linear = curved and sig.verdict == "linear" and (
-        bres.verdict != "stiction" or (sig.r2_linear >= FOLLOWS_R2 and sig.gain < FOLLOWS_GAIN))
+        not sharp or (sig.r2_linear >= FOLLOWS_R2 and sig.gain < FOLLOWS_GAIN))
     if not valve_faulty and (follows_op(sig, osc.period) or curved_linear):
         why = (f"the valve position implied by the PV slope follows the OP (held-out R2 "
                f"{sig.r2_linear:.2f} with a linear valve; a sticky or loose valve removes only "
