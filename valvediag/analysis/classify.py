@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
+from .bumps import setpoint_bumps
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import Oscillation, detect_oscillation
 from .quality import bridge_short_gaps, despike, longest_run, white_noise_std
@@ -572,6 +573,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         quiet = ("no-oscillation", 0.6 + 0.3 * min(1.0, max(0.0, 1.0 - osc.regularity)),
                  f"no regular oscillation (regularity {osc.regularity:.2f}, "
                  f"autocorrelation at one period {osc.acf_at_period:.2f})")
+    read: dict = {}      # the valve events read, by process type
+
     def valve_events(screened: str = "unknown", min_events: float = 0.0):
         """A sticky or loose valve shown by its slips or take-ups, or None.
 
@@ -585,6 +588,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             kinds = tuple(k for k in kinds if k != "integrating")
         for kind in kinds:
             slips = stick_slip_events(x, u, h, process=kind, sp=ev_sp)
+            read[kind] = slips
             if slips.found and slips.consistent < min_events:
                 # too few to make up the cycle: kept as evidence, not a verdict
                 ev["stick_slip_too_few"] = dict(slips.as_dict(), process=kind,
@@ -611,15 +615,35 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                                "valve events (slips and take-ups)", **common)
         return None
 
+    def setpoint_steps():
+        """A level's valve that held through the kicks of its set-point steps, or None."""
+        if process_type != "integrating" or sp is None or pv_compressed:
+            return None
+        bumps = setpoint_bumps(x, u, sp[a:b], h)
+        ev["setpoint_bumps"] = bumps.as_dict()
+        if not bumps.found:
+            return None
+        kinks = read.get("integrating")
+        method = "method: set-point steps as bump tests"
+        if kinks is not None and kinks.slips > 0:
+            # a dead band makes no slip: the level's kinks name the kind
+            return verdict("stiction", 0.5 + 0.3 * min(1.0, bumps.against / 6.0),
+                           f"{bumps.reason}; and {kinks.slips} of the level's kinks were "
+                           f"slips (integrating process, loop registry); {method} and valve "
+                           "events", **common)
+        return verdict("undecided", 0.4 + 0.2 * min(1.0, bumps.against / 6.0),
+                       f"{bumps.reason}: a sticky valve, or a loose one inside its dead band "
+                       f"(integrating process, loop registry); {method}", **common)
+
     def slips_or(v, conf, reason):
         """No limit cycle to judge: a sticky valve may still show itself by its slips,
-        or by its recorded position."""
+        by its answer to set-point steps, or by its recorded position."""
         if travel is not None and travel.fault:
             return travel_verdict(**common)
         if travel is not None and travel.verdict == "linear":
             # a valve that follows the OP makes no slips
             return verdict(v, conf, f"{reason}; {travel.reason}", **common)
-        return valve_events() or verdict(v, conf, reason, **common)
+        return valve_events() or setpoint_steps() or verdict(v, conf, reason, **common)
 
     if quiet is not None:
         return slips_or(*quiet)

@@ -1,0 +1,103 @@
+"""Set-point steps read as bump tests of a level's valve."""
+import matplotlib
+
+matplotlib.use("Agg")
+import numpy as np
+import pytest
+
+from valvediag.analysis.bumps import BUMP_Z, MIN_BUMPS_AGAINST, setpoint_bumps
+from valvediag.analysis.classify import classify_loop
+from valvediag.models.closedloop import simulate_loop
+from valvediag.synth.cases import alternating_steps
+
+
+def p_only_level(seed, valve, valve_params=None, sense=1.0, h=5.0, n=17_280):
+    """A day of a proportional-only level under a wandering load, with set-point steps."""
+    rng = np.random.default_rng(seed)
+    sp = alternating_steps(rng, n, every_s=(1500.0, 3000.0), size=(2.0, 4.0), sample_time=h)
+    t = np.arange(n) * h
+    knots = np.arange(0.0, n * h + 901.0, 900.0)
+    load = np.interp(t, knots, np.cumsum(rng.normal(0.0, 0.8, knots.size)))
+    r = simulate_loop(kc=1.5 * sense, ti=1e12, sample_time=h, n_samples=n, process="integrating",
+                      process_gain=sense, tau=300.0, valve=valve, valve_params=valve_params,
+                      sp=50.0, load=50.0 * sense, load_profile=load * sense, sp_profile=sp,
+                      noise_std=0.05, seed=seed)
+    return r.pv, r.op, r.sp, h
+
+
+def level_bending(seed, against, h=10.0, n=8640, rate=2e-4):
+    """Hand-built: a level whose slope turns smoothly at each set-point step, the
+    kick's way or against it (``against``: which steps, by their order), and a
+    proportional controller's OP computed from it."""
+    rng = np.random.default_rng(seed)
+    sp = 50.0 + alternating_steps(rng, n, every_s=(1500.0, 3000.0), size=(2.5, 3.5),
+                                  sample_time=h)
+    t = np.arange(n) * h
+    slope = np.zeros(n)
+    for i, k in enumerate(np.flatnonzero(np.diff(sp)) + 1):
+        way = np.sign(sp[k] - sp[k - 1]) * (-1.0 if against(i) else 1.0)
+        slope += way * rate * 0.5 * (1.0 + np.tanh((t - t[k] - 150.0) / 60.0))
+    pv = 50.0 + np.cumsum(slope) * h + rng.normal(0.0, 0.02, n)
+    op = 40.0 + 1.5 * (sp - pv) + rng.normal(0.0, 0.03, n)
+    return pv, op, sp, h
+
+
+@pytest.mark.parametrize("sense", [1.0, -1.0])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_level_whose_valve_follows_answers_every_setpoint_kick(seed, sense):
+    pv, op, sp, h = p_only_level(seed, "linear", sense=sense)
+    b = setpoint_bumps(pv, op, sp, h)
+    assert b.sense == sense
+    assert b.steps >= 30
+    assert b.against == 0 and not b.found
+    assert b.answered == b.steps and np.all(b.z >= BUMP_Z)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_sticky_level_valve_holds_through_the_kicks(seed):
+    pv, op, sp, h = p_only_level(seed, "kano", {"S": 4.0, "J": 2.0})
+    b = setpoint_bumps(pv, op, sp, h)
+    assert b.found
+    # the valve held through most kicks, and the level went its own way
+    assert b.against >= b.steps / 2
+    assert "moved against the OP" in b.reason
+
+
+def test_one_step_against_the_kick_is_not_a_fault():
+    for n_against, found in ((1, False), (MIN_BUMPS_AGAINST, True)):
+        pv, op, sp, h = level_bending(0, against=lambda i: i < n_against)
+        b = setpoint_bumps(pv, op, sp, h)
+        assert b.against == n_against
+        assert b.found is found
+        assert b.answered >= b.steps / 2
+
+
+def test_classify_reads_the_steps_only_on_a_level():
+    pv, op, sp, h = level_bending(1, against=lambda i: True)
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
+    # no slip of the level's slope (its turns are smooth): sticky or loose
+    assert d.verdict == "undecided"
+    assert d.evidence["setpoint_bumps"]["found"]
+    assert "set-point steps as bump tests" in d.reason
+    # a flow answers a kick in its PV, not its slope: the steps are not read
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="self-regulating")
+    assert "setpoint_bumps" not in d.evidence
+    # the level that bends the kick's way is no valve fault
+    pv, op, sp, h = level_bending(1, against=lambda i: False)
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
+    assert d.verdict == "no-oscillation"
+    assert not d.evidence["setpoint_bumps"]["found"]
+
+
+def test_a_record_without_steps_reads_nothing_and_plots():
+    pv, op, sp, h = p_only_level(0, "linear", n=2000)
+    flat = np.full(pv.size, 50.0)
+    b = setpoint_bumps(pv, op, flat, h)
+    assert not b.found and b.steps == 0
+    assert "no set-point step" in b.reason
+    import matplotlib.pyplot as plt
+
+    b = setpoint_bumps(*p_only_level(0, "kano", {"S": 4.0, "J": 2.0}))
+    ax = b.plot()
+    assert ax.get_title().startswith(f"{b.against} of {b.steps}")
+    plt.close("all")

@@ -1,0 +1,258 @@
+"""
+Set-point steps read as bump tests of a level's valve.
+
+When an operator steps a level's set point, the controller's proportional
+action kicks the OP at once. A valve that follows its OP changes the level's
+inflow (or outflow) by the kick, and the level, which integrates the valve's
+position, bends the kick's way: its slope steps by the process's gain times
+the kick, and the loop's answer then curves it back. A sticky valve may hold
+through the kick; the level then runs on as before, and whatever bends it in
+the minutes around the step (the load, a slip made later when the OP has
+crept further) owes nothing to the kick. Every set-point step is thus a free
+bump test of the valve, where the record has them.
+
+:func:`setpoint_bumps` fits, around every isolated set-point step, the level
+as a straight line plus a gain times the integral of the OP's move, and
+counts the steps at which the level moved *against* the OP by more than the
+noise allows: no valve that follows its OP does that.
+
+References
+----------
+.. [1] Kano, M., Maruta, H., Kugemoto, H., Shimizu, K. (2004). Practical model
+   and detection algorithm for valve stiction. IFAC DYCOPS 7, Boston.
+.. [2] Åström, K. J., Hägglund, T. (2006). Advanced PID Control. ISA,
+   Research Triangle Park (set-point steps and the proportional kick).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .quality import white_noise_std
+from .signature import loop_sense
+
+__all__ = ["SetPointBumps", "setpoint_bumps", "BUMP_HALF_WINDOW_S", "BUMP_Z", "MIN_BUMPS_AGAINST"]
+
+#: Stretch read either side of a set-point step [s], cut short at the next
+#: and the last step.
+BUMP_HALF_WINDOW_S = 600.0
+#: Standard errors by which the level's answer must go against the kick.
+BUMP_Z = 6.0
+#: Steps answered against the kick that make a fault.
+MIN_BUMPS_AGAINST = 2
+#: Fewest samples either side of a step.
+MIN_SIDE = 8
+
+
+@dataclass(frozen=True)
+class SetPointBumps:
+    """A level's answer to its set-point steps.
+
+    Attributes
+    ----------
+    found : bool
+        At least :data:`MIN_BUMPS_AGAINST` steps at which the level moved
+        against the OP: a valve that did not follow its OP.
+    reason : str
+        One sentence.
+    steps : int
+        Set-point steps read (isolated, with :data:`MIN_SIDE` samples either
+        side).
+    answered : int
+        Steps at which the level bent the OP's way, by more than
+        :data:`BUMP_Z` standard errors.
+    against : int
+        Steps at which it bent against the OP, by more than :data:`BUMP_Z`
+        standard errors.
+    sense : float
+        +1 when the level rises with the OP, -1 when it falls, 0 when the
+        record cannot tell (then nothing is found).
+    index : numpy.ndarray
+        Sample of each step read.
+    gain : numpy.ndarray
+        Fitted gain at each step, in the loop's sense [PV unit / (OP unit s)]:
+        positive where the level answered the OP.
+    z : numpy.ndarray
+        ``gain`` over its standard error.
+    kick : numpy.ndarray
+        The OP's move at each step, three samples after against three before
+        [OP unit].
+    """
+
+    found: bool
+    reason: str
+    steps: int = 0
+    answered: int = 0
+    against: int = 0
+    sense: float = 0.0
+    index: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
+    gain: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    z: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    kick: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    pv: np.ndarray | None = field(default=None, repr=False)
+    op: np.ndarray | None = field(default=None, repr=False)
+    sp: np.ndarray | None = field(default=None, repr=False)
+    sample_time: float = 1.0
+
+    def as_dict(self) -> dict:
+        """The figures as plain types."""
+        return {"found": self.found, "steps": self.steps, "answered": self.answered,
+                "against": self.against, "sense": self.sense,
+                "z": [round(float(v), 1) for v in self.z]}
+
+    def plot(self, ax=None):
+        """PV, set point and OP, with each step marked by the way the level answered.
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(9, 3.5))
+        if self.pv is None:
+            ax.text(0.5, 0.5, self.reason, ha="center", va="center", transform=ax.transAxes)
+            return ax
+        t = np.arange(self.pv.size) * self.sample_time
+        ax.plot(t, self.pv, lw=0.7, color="C0", label="PV")
+        ax.plot(t, self.sp, lw=0.7, color="k", ls="--", label="SP")
+        against = self.z <= -BUMP_Z
+        answered = self.z >= BUMP_Z
+        for sel, mark, lab in ((answered, "^", "level answered the kick"),
+                               (against, "v", "level moved against it")):
+            k = self.index[sel]
+            ax.plot(t[k], self.pv[k], mark, mfc="none", color="C3" if mark == "v" else "C2",
+                    label=lab)
+        ax2 = ax.twinx()
+        ax2.plot(t, self.op, lw=0.6, color="C1", alpha=0.7)
+        ax2.set_ylabel("OP")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("PV")
+        ax.legend(loc="upper left", fontsize=7)
+        ax.set_title(f"{self.against} of {self.steps} set-point steps answered against the OP")
+        return ax
+
+
+def setpoint_bumps(pv, op, sp, sample_time: float, *, sense: float | None = None,
+                   half_window_s: float = BUMP_HALF_WINDOW_S) -> SetPointBumps:
+    """Read a level's set-point steps as bump tests of its valve.
+
+    Parameters
+    ----------
+    pv, op, sp : array_like, shape (n,)
+        One gap-free stretch of a level loop in automatic [PV unit, OP unit,
+        PV unit]; NaN in ``sp`` leaves the steps near it unread.
+    sample_time : float
+        [s]
+    sense : float, optional
+        +1 when the level rises with the OP, -1 when it falls. By default
+        read from the controller's answer to noise
+        (:func:`~valvediag.analysis.signature.loop_sense`), else from the
+        way most steps were answered.
+    half_window_s : float
+        Stretch read either side of a step [s], cut at the neighbouring steps.
+
+    Returns
+    -------
+    SetPointBumps
+
+    Notes
+    -----
+    A step is a set-point move of more than three noise standard deviations
+    of the PV between two samples. Over the stretch around it (at most
+    ``half_window_s`` either side, not reaching the neighbouring steps, at
+    least :data:`MIN_SIDE` samples either side) the level is fitted by
+    least squares as
+
+    .. math:: y(t) = a + b\\,t + c \\int_{t_0}^{t} (u(s) - u_k)\\,ds
+
+    where :math:`u_k` is the OP just before the step. The line is the level's
+    run under the net load; the last term is what a valve that follows the
+    OP adds (the level integrates the valve's position), kick and the
+    controller's answer after it included. The gain :math:`c`, in the loop's
+    sense, is positive where the valve followed; its standard error is read
+    from the PV's white noise. A gain of the wrong sign beyond
+    :data:`BUMP_Z` standard errors says the level bent against everything
+    the OP did around the step: the valve did not follow.
+
+    It assumes an integrating process (a level), a controller with
+    proportional action on the error (a set-point step with set-point
+    weighting zero kicks nothing and reads nothing) and a load that does not
+    turn within the stretch by more than the kick moves the valve. It fails
+    where a load's step coincides with a set-point step the other way (an
+    operator moving the set point as a pump starts); two such steps are
+    needed. A loose valve that holds inside its dead band after a kick that
+    reverses the OP holds as a sticky one does: the test reads a valve that
+    did not follow, and the kind of fault comes from other evidence. A self-
+    regulating process answers a kick in its PV, not its slope, and is not
+    read. A record compressed by the historian has too little noise read
+    between its stored points for the standard errors to hold.
+
+    References
+    ----------
+    See the module docstring.
+    """
+    h = float(sample_time)
+    pv = np.asarray(pv, dtype=float).ravel()
+    op = np.asarray(op, dtype=float).ravel()
+    sp = np.asarray(sp, dtype=float).ravel()
+    base = dict(pv=pv, op=op, sp=sp, sample_time=h)
+    if not (pv.size == op.size == sp.size) or pv.size < 2 * MIN_SIDE:
+        return SetPointBumps(found=False, reason=f"only {pv.size} samples", **base)
+    noise = white_noise_std(pv)
+    if not noise > 0:
+        return SetPointBumps(found=False, reason="the PV has no measurable noise", **base)
+    jumps = np.flatnonzero(np.abs(np.diff(sp)) > 3.0 * noise) + 1
+    half = max(MIN_SIDE, int(round(half_window_s / h)))
+    idx, gain, se, kick = [], [], [], []
+    for j, k in enumerate(jumps):
+        lo = max(0, k - half, jumps[j - 1] + 1 if j else 0)
+        hi = min(pv.size, k + half, jumps[j + 1] if j + 1 < jumps.size else pv.size)
+        if k - lo < MIN_SIDE or hi - k < MIN_SIDE or not np.all(np.isfinite(sp[lo:hi])):
+            continue
+        t = np.arange(lo - k, hi - k, dtype=float)
+        moved = h * np.r_[0.0, np.cumsum(op[lo:hi - 1] - op[k - 1])]
+        A = np.c_[np.ones_like(t), t, moved]
+        AtA = A.T @ A
+        if np.linalg.cond(AtA) > 1e12:
+            continue
+        inv = np.linalg.inv(AtA)
+        c = float(inv[2] @ (A.T @ pv[lo:hi]))
+        idx.append(int(k))
+        gain.append(c)
+        se.append(noise * math.sqrt(float(inv[2, 2])))
+        kick.append(float(np.mean(op[k:k + 3]) - np.mean(op[k - 3:k])))
+    idx, gain, se, kick = (np.asarray(idx, int), np.asarray(gain), np.asarray(se),
+                           np.asarray(kick))
+    z = gain / se if idx.size else np.zeros(0)
+    if sense is None:
+        sense = loop_sense(pv, op)
+        if sense == 0 and idx.size:
+            strong = np.sign(z[np.abs(z) >= BUMP_Z])
+            if strong.size and abs(strong.sum()) >= strong.size / 3.0:
+                sense = float(np.sign(strong.sum()))
+    base.update(sense=float(sense), index=idx)
+    if idx.size == 0:
+        what = "no set-point step" if jumps.size == 0 else \
+            f"no set-point step with {MIN_SIDE} steady samples either side"
+        return SetPointBumps(found=False, reason=f"{what} to read the valve by", **base)
+    if sense == 0:
+        return SetPointBumps(found=False, steps=int(idx.size), gain=gain, z=z, kick=kick,
+                             reason="the sense in which the OP moves the level cannot be read",
+                             **base)
+    gain, z = gain * sense, z * sense
+    answered = int(np.sum(z >= BUMP_Z))
+    against = int(np.sum(z <= -BUMP_Z))
+    found = against >= MIN_BUMPS_AGAINST
+    if found:
+        reason = (f"at {against} of {idx.size} set-point steps the level moved against the "
+                  f"OP (by more than {BUMP_Z:g} standard errors; {answered} answered its kick): "
+                  "a valve that follows its OP bends a level the kick's way, this one held")
+    else:
+        reason = (f"{answered} of {idx.size} set-point steps answered the OP's kick, "
+                  f"{against} went against it (a fault needs {MIN_BUMPS_AGAINST})")
+    return SetPointBumps(found=found, reason=reason, steps=int(idx.size), answered=answered,
+                         against=against, gain=gain, z=z, kick=kick, **base)
