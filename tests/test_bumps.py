@@ -101,3 +101,40 @@ def test_a_record_without_steps_reads_nothing_and_plots():
     ax = b.plot()
     assert ax.get_title().startswith(f"{b.against} of {b.steps}")
     plt.close("all")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_slip_steps_the_slope_by_more_than_a_following_valve(seed):
+    from valvediag.analysis.bumps import SLIP_OVER_FOLLOWING, kinks_over_following
+    from valvediag.analysis.signature import stick_slip_events
+
+    ratios = {}
+    for valve, params in (("linear", None), ("kano", {"S": 4.0, "J": 2.0})):
+        pv, op, sp, h = p_only_level(seed, valve, params)
+        kinks = stick_slip_events(pv, op, h, process="integrating", sp=sp)
+        ratios[valve] = kinks_over_following(kinks, setpoint_bumps(pv, op, sp, h))
+    # the linear valve's kinks (too few to be a fault) are what its OP made them
+    assert ratios["linear"] < 1.0
+    # a slip is the valve's travel since it stuck, far beyond the OP's last move
+    assert ratios["kano"] > 10 * SLIP_OVER_FOLLOWING
+
+
+@pytest.mark.parametrize("seed,index", [(1, 4), (16, 5), (14, 6)])
+def test_a_healthy_level_whose_kinks_its_op_made_is_not_called_sticky(seed, index):
+    """Healthy levels of the realistic benchmark's generator (PI control, set-point
+    steps, a wandering load with pump steps) whose kinks the reader takes for
+    slips: the OP's travel before each, through the valve's gain read at the
+    set-point steps, makes the slope step the kink shows."""
+    from valvediag.analysis.signature import stick_slip_events
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    rng = np.random.default_rng([seed, list(CLASSES).index("level-healthy"), index])
+    loop = draw_loop("level-healthy", rng)
+    kinks = stick_slip_events(loop.pv, loop.op, loop.sample_time, process="integrating",
+                              sp=loop.sp)
+    assert kinks.found and kinks.kind == "stiction"      # what the kinks alone say
+    d = classify_loop(loop.pv, loop.op, loop.sp, sample_time=loop.sample_time,
+                      process_type="integrating")
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+    assert d.evidence["kinks_followed"]["ratio"] < 3.0
+    assert d.evidence["setpoint_bumps"]["answered"] >= 3

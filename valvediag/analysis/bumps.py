@@ -14,7 +14,11 @@ bump test of the valve, where the record has them.
 :func:`setpoint_bumps` fits, around every isolated set-point step, the level
 as a straight line plus a gain times the integral of the OP's move, and
 counts the steps at which the level moved *against* the OP by more than the
-noise allows: no valve that follows its OP does that.
+noise allows: no valve that follows its OP does that. The steps the level
+answered give the valve's gain, and :func:`kinks_over_following` checks a
+level's kinks (:func:`~valvediag.analysis.signature.stick_slip_events`)
+against it: a slip steps the slope by far more than the OP's last move makes
+through that gain.
 
 References
 ----------
@@ -33,7 +37,8 @@ import numpy as np
 from .quality import white_noise_std
 from .signature import loop_sense
 
-__all__ = ["SetPointBumps", "setpoint_bumps", "BUMP_HALF_WINDOW_S", "BUMP_Z", "MIN_BUMPS_AGAINST"]
+__all__ = ["SetPointBumps", "setpoint_bumps", "kinks_over_following", "BUMP_HALF_WINDOW_S",
+           "BUMP_Z", "MIN_BUMPS_AGAINST", "SLIP_OVER_FOLLOWING"]
 
 #: Stretch read either side of a set-point step [s], cut short at the next
 #: and the last step.
@@ -256,3 +261,52 @@ def setpoint_bumps(pv, op, sp, sample_time: float, *, sense: float | None = None
                   f"{against} went against it (a fault needs {MIN_BUMPS_AGAINST})")
     return SetPointBumps(found=found, reason=reason, steps=int(idx.size), answered=answered,
                          against=against, gain=gain, z=z, kick=kick, **base)
+
+
+#: A slip steps a level's slope by at least this multiple of what the OP's
+#: travel before it makes through the valve's gain read at the set-point steps.
+SLIP_OVER_FOLLOWING = 3.0
+#: Set-point steps answered that read the valve's gain.
+MIN_ANSWERED = 3
+
+
+def kinks_over_following(kinks, bumps: SetPointBumps) -> float:
+    """How much more a level's kinks step its slope than a valve that followed the OP would.
+
+    Parameters
+    ----------
+    kinks : valvediag.analysis.signature.StickSlipEvents
+        A level's valve events (``process='integrating'``).
+    bumps : SetPointBumps
+        The same record's set-point steps.
+
+    Returns
+    -------
+    float
+        Median over the valve events of the slope step over the valve's gain
+        times the OP's travel before the kink; NaN where fewer than
+        :data:`MIN_ANSWERED` steps answered the kick or there is no event.
+
+    Notes
+    -----
+    The gain is the median, over the steps the level answered, of the fitted
+    gain [PV unit / (OP unit s)]: what a unit of OP does to the level's
+    slope. A valve that follows its OP steps the slope by about the gain times
+    the OP's move, so its kinks read about 1 (1-3 on the development sets'
+    healthy levels, where a quick OP move after a load's step makes a kink
+    the reader took for a slip). A sticky valve jumps by the OP's travel since
+    it stuck, which the stretch before the kink holds only in part: its
+    kinks read 3-30. A sticky valve whose kicks always exceed its band
+    answers every step, and its gain so read is a slipping valve's, larger
+    than a following one's: the ratio then errs low. Where the set point
+    never moves, nothing is read.
+    """
+    answered = bumps.z >= BUMP_Z
+    if int(answered.sum()) < MIN_ANSWERED or kinks.size.size == 0:
+        return math.nan
+    g = float(np.median(bumps.gain[answered]))
+    moved = g * kinks.travel
+    ok = moved > 0
+    if not ok.any():
+        return math.nan
+    return float(np.median(np.abs(kinks.size[ok]) / moved[ok]))

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
-from .bumps import setpoint_bumps
+from .bumps import SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import Oscillation, detect_oscillation
 from .quality import bridge_short_gaps, despike, longest_run, white_noise_std
@@ -593,6 +593,16 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                 # too few to make up the cycle: kept as evidence, not a verdict
                 ev["stick_slip_too_few"] = dict(slips.as_dict(), process=kind,
                                                 needed=round(float(min_events), 1))
+            if slips.found and kind == "integrating" and ev_sp is not None:
+                # a valve that follows the OP kinks a level by about its gain
+                # (read at the set-point steps) times the OP's move: no slip
+                bumps = setpoint_bumps(x, u, ev_sp, h)
+                ratio = kinks_over_following(slips, bumps)
+                ev["setpoint_bumps"] = dict(bumps.as_dict(),
+                                            kinks_over_following=round(ratio, 2))
+                if ratio < SLIP_OVER_FOLLOWING:
+                    ev["kinks_followed"] = dict(slips.as_dict(), ratio=round(ratio, 2))
+                    continue
             if slips.found and slips.consistent >= min_events:
                 ev.update(stick_slip=slips.as_dict(), process_screen=kind)
                 src = "loop registry" if process_type != "unknown" else "assumed"

@@ -730,6 +730,12 @@ class StickSlipEvents:
     step : int
         Samples over which a jump was measured (on a level, the half-window
         over which its kinks were read).
+    travel : numpy.ndarray
+        OP travel before each valve event [OP unit]: over the half-window
+        before a level's kink, over the stretch held before a jump.
+    size : numpy.ndarray
+        Each valve event's size: a level's slope step [PV unit/s], a PV's
+        jump [PV unit].
     """
 
     process: str
@@ -743,6 +749,8 @@ class StickSlipEvents:
     op_travel: float = math.nan
     index: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
     step: int = 1
+    travel: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    size: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     pv: np.ndarray | None = field(default=None, repr=False)
     op: np.ndarray | None = field(default=None, repr=False)
     sample_time: float = 1.0
@@ -988,7 +996,7 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     if best is None:
         what = "kink of the level" if process == "integrating" else "jump of the PV"
         return StickSlipEvents(found=False, reason=f"no {what} beyond its noise", **base)
-    L, (idx, ok, travel, on), n_ok, is_fault = best
+    L, (idx, ok, travel, on, size), n_ok, is_fault = best
     slip = slips_of(ok, on)
     n_slip, n_take = int(slip.sum()), int((ok & ~slip).sum())
     op_travel = float(np.median(travel[ok])) if n_ok else math.nan
@@ -1021,14 +1029,16 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
                   f"{MIN_SLIPS_ALONE} and all)")
     return StickSlipEvents(found=is_fault, reason=reason, events=int(idx.size),
                            consistent=n_ok, slips=n_slip, takeups=n_take, kind=kind,
-                           op_travel=op_travel, index=idx[ok], step=L, **base)
+                           op_travel=op_travel, index=idx[ok], step=L, travel=travel[ok],
+                           size=size[ok] / (h if process == "integrating" else 1.0), **base)
 
 
 def _slips(y, op, err, sp, L, thr, band, err_min):
     """Jumps of a self-regulating PV ``y`` over ``L`` samples beyond ``thr``, or None.
 
     Returns (index, is a valve event, OP travel before it, OP travel during
-    it in the direction of the travel before it) of the jumps with a stretch
+    it in the direction of the travel before it, the jump [PV unit]) of the
+    jumps with a stretch
     of at least ``2 L`` samples since the last one (a jump hard on another
     continues it and is not judged)."""
     d = y[L:] - y[:-L]
@@ -1084,7 +1094,7 @@ def _slips(y, op, err, sp, L, thr, band, err_min):
         # the OP over the jump (one step either side: a process's dead time
         # puts the OP that drives a take-up before the PV's move)
         on[i] = (op[min(n - 1, k + L)] - op[max(0, k - L)]) * np.sign(travel[i])
-    return idx[judged], ok[judged], np.abs(travel[judged]), on[judged]
+    return idx[judged], ok[judged], np.abs(travel[judged]), on[judged], d[idx[judged]]
 
 
 def loop_sense(pv, op) -> float:
@@ -1175,8 +1185,8 @@ def _stretch_bend(y, noise):
 def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
     """Kinks of a level read over half-windows of ``w`` samples, or None.
 
-    Returns (index, is a valve event, OP travel before it, zeros) of the
-    kinks judged, in the form of :func:`_slips`."""
+    Returns (index, is a valve event, OP travel before it, zeros, slope step
+    [PV unit per sample]) of the kinks judged, in the form of :func:`_slips`."""
     n = pv.size
     y = pv - np.median(pv)
     kink, kink_norm, bend, bend_norm = _kink_kernels(w)
@@ -1229,5 +1239,6 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
         near = near[np.isfinite(near)]
         abrupt = near.size > 0 and float(near.max()) >= KINK_ABRUPT * abs(d)
         ok[i] = way and held and abrupt
-    return idx[judged], ok[judged], np.abs(travel[judged]), np.zeros(int(judged.sum()))
+    return (idx[judged], ok[judged], np.abs(travel[judged]), np.zeros(int(judged.sum())),
+            pk[idx[judged]] / kink_norm)
 
