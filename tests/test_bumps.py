@@ -138,3 +138,13 @@ def test_a_healthy_level_whose_kinks_its_op_made_is_not_called_sticky(seed, inde
     assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
     assert d.evidence["kinks_followed"]["ratio"] < 3.0
     assert d.evidence["setpoint_bumps"]["answered"] >= 3
+
+
+def test_a_fault_found_by_setpoint_steps_is_not_sized():
+    from valvediag.scan.loop import signature_size
+
+    pv, op, sp, h = level_bending(1, against=lambda i: True)
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
+    size = signature_size(d.evidence, "stiction")
+    assert np.isnan(size["S"]) and size["confidence"] == 0.0
+    assert "set-point steps" in size["reason"]

@@ -454,7 +454,9 @@ def signature_size(evidence: Mapping, fault: str) -> dict:
     evidence : mapping
         The diagnosis' evidence, with ``signature``
         (:meth:`valvediag.analysis.signature.ValveSignature.as_dict`) or
-        ``stick_slip`` (:meth:`~valvediag.analysis.signature.StickSlipEvents.as_dict`).
+        ``stick_slip`` (:meth:`~valvediag.analysis.signature.StickSlipEvents.as_dict`)
+        or ``setpoint_bumps``
+        (:meth:`~valvediag.analysis.bumps.SetPointBumps.as_dict`).
     fault : {'stiction', 'backlash'}
         The verdict.
 
@@ -466,17 +468,20 @@ def signature_size(evidence: Mapping, fault: str) -> dict:
         of the signature [%]), ``confidence`` (at most 0.5: these sizes are
         not benchmarked) and ``reason``. From stick-slip
         events alone the OP travel before a slip is a lower bound of the
-        stick band; no size is given then (NaN, confidence 0).
+        stick band, and a level's answer to its set-point steps gives no
+        band at all; no size is given then (NaN, confidence 0).
     """
     sig = evidence.get("signature") or {}
     S, J = sig.get("S"), sig.get("J")
     if sig.get("verdict") not in ("stiction", "backlash", "undecided") or S is None:
         slips = evidence.get("stick_slip") or {}
+        bumps = evidence.get("setpoint_bumps") or {}
         out = {"S": math.nan, "J": math.nan} if fault == "stiction" else {"DB": math.nan}
         out.update(confidence=0.0, reason=(
             f"found by its valve events, not sized: the OP crept about "
             f"{slips.get('op_travel')} % before each" if slips else
-            "no valve signature to size from"))
+            "found by the level's answer to its set-point steps, not sized"
+            if bumps.get("found") else "no valve signature to size from"))
         return out
     r2, gain = sig.get("r2_valve") or 0.0, sig.get("gain") or 0.0
     out = {"DB": float(S)} if fault == "backlash" else {"S": float(S), "J": float(J)}
@@ -773,7 +778,8 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
             episodes = [(a, b, dataclasses.replace(d, verdict="stiction"))
                         if (a, b) == (ra, rb) else (a, b, d) for a, b, d in episodes]
     if config.size_estimate and verdict in VALVE_FAULTS and size is None:
-        if ptype == "self-regulating" or "stick_slip" in rep.evidence:
+        if ptype == "self-regulating" or "stick_slip" in rep.evidence \
+                or (rep.evidence.get("setpoint_bumps") or {}).get("found"):
             # the valve signature is itself a fit of the valve behind the
             # process: its band and jump are the size (no second, slower fit)
             size = signature_size(rep.evidence, verdict)
