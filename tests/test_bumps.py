@@ -148,3 +148,12 @@ def test_a_fault_found_by_setpoint_steps_is_not_sized():
     size = signature_size(d.evidence, "stiction")
     assert np.isnan(size["S"]) and size["confidence"] == 0.0
     assert "set-point steps" in size["reason"]
+
+
+def test_a_cascade_set_point_that_moves_at_every_sample_has_no_step_to_read():
+    pv, op, sp, h = p_only_level(0, "linear")
+    rng = np.random.default_rng(5)
+    moving = sp + np.cumsum(rng.normal(0.0, 1.0, sp.size))       # a master's output
+    b = setpoint_bumps(pv, op, moving, h)
+    assert b.steps == 0 and not b.found
+    assert "steady samples either side" in b.reason

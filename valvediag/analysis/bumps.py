@@ -49,6 +49,8 @@ BUMP_Z = 6.0
 MIN_BUMPS_AGAINST = 2
 #: Fewest samples either side of a step.
 MIN_SIDE = 8
+#: Most steps read (the first ones of the record).
+MAX_STEPS = 500
 
 
 @dataclass(frozen=True)
@@ -170,7 +172,7 @@ def setpoint_bumps(pv, op, sp, sample_time: float, *, sense: float | None = None
     of the PV between two samples. Over the stretch around it (at most
     ``half_window_s`` either side, not reaching the neighbouring steps, at
     least :data:`MIN_SIDE` samples either side) the level is fitted by
-    least squares as
+    least squares (the first :data:`MAX_STEPS` such steps) as
 
     .. math:: y(t) = a + b\\,t + c \\int_{t_0}^{t} (u(s) - u_k)\\,ds
 
@@ -212,11 +214,14 @@ def setpoint_bumps(pv, op, sp, sample_time: float, *, sense: float | None = None
         return SetPointBumps(found=False, reason="the PV has no measurable noise", **base)
     jumps = np.flatnonzero(np.abs(np.diff(sp)) > 3.0 * noise) + 1
     half = max(MIN_SIDE, int(round(half_window_s / h)))
+    # the isolated steps (a cascade's set point, moving at every sample, has none)
+    prev = np.r_[-1, jumps[:-1]]
+    nxt = np.r_[jumps[1:], pv.size]
+    isolated = (jumps - prev - 1 >= MIN_SIDE) & (nxt - jumps >= MIN_SIDE)
     idx, gain, se, kick = [], [], [], []
-    for j, k in enumerate(jumps):
-        lo = max(0, k - half, jumps[j - 1] + 1 if j else 0)
-        hi = min(pv.size, k + half, jumps[j + 1] if j + 1 < jumps.size else pv.size)
-        if k - lo < MIN_SIDE or hi - k < MIN_SIDE or not np.all(np.isfinite(sp[lo:hi])):
+    for k, p, q in zip(jumps[isolated][:MAX_STEPS], prev[isolated], nxt[isolated]):
+        lo, hi = max(0, k - half, p + 1), min(pv.size, k + half, q)
+        if not np.all(np.isfinite(sp[lo:hi])):
             continue
         t = np.arange(lo - k, hi - k, dtype=float)
         moved = h * np.r_[0.0, np.cumsum(op[lo:hi - 1] - op[k - 1])]
