@@ -573,7 +573,13 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         quiet = ("no-oscillation", 0.6 + 0.3 * min(1.0, max(0.0, 1.0 - osc.regularity)),
                  f"no regular oscillation (regularity {osc.regularity:.2f}, "
                  f"autocorrelation at one period {osc.acf_at_period:.2f})")
-    read: dict = {}      # the valve events read, by process type
+    read: dict = {}      # what was read: valve events by process type, set-point steps
+
+    def level_bumps():
+        """The level's set-point steps read as bump tests (once a record)."""
+        if "bumps" not in read:
+            read["bumps"] = setpoint_bumps(x, u, sp[a:b], h)
+        return read["bumps"]
 
     def valve_events(screened: str = "unknown", min_events: float = 0.0):
         """A sticky or loose valve shown by its slips or take-ups, or None.
@@ -596,7 +602,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             if slips.found and kind == "integrating" and ev_sp is not None:
                 # a valve that follows the OP kinks a level by about its gain
                 # (read at the set-point steps) times the OP's move: no slip
-                bumps = setpoint_bumps(x, u, ev_sp, h)
+                bumps = level_bumps()
                 ratio = kinks_over_following(slips, bumps)
                 ev["setpoint_bumps"] = dict(bumps.as_dict(),
                                             kinks_over_following=round(ratio, 2))
@@ -629,8 +635,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         """A level's valve that held through the kicks of its set-point steps, or None."""
         if process_type != "integrating" or sp is None or pv_compressed:
             return None
-        bumps = setpoint_bumps(x, u, sp[a:b], h)
-        ev["setpoint_bumps"] = bumps.as_dict()
+        bumps = level_bumps()
+        ev.setdefault("setpoint_bumps", bumps.as_dict())
         if not bumps.found:
             return None
         kinks = read.get("integrating")

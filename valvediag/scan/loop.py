@@ -781,7 +781,8 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
         if ptype == "self-regulating" or "stick_slip" in rep.evidence \
                 or (rep.evidence.get("setpoint_bumps") or {}).get("found"):
             # the valve signature is itself a fit of the valve behind the
-            # process: its band and jump are the size (no second, slower fit)
+            # process: its band and jump are the size (no second, slower fit);
+            # valve events and set-point steps give none
             size = signature_size(rep.evidence, verdict)
         else:
             size = valve_fault_size(aligned, ra, rb, verdict, ptype, period=rep.period)
