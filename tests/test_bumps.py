@@ -157,3 +157,12 @@ def test_a_cascade_set_point_that_moves_at_every_sample_has_no_step_to_read():
     b = setpoint_bumps(pv, op, moving, h)
     assert b.steps == 0 and not b.found
     assert "steady samples either side" in b.reason
+
+
+def test_bad_input_is_named():
+    pv, op, sp, h = p_only_level(0, "linear", n=2000)
+    with pytest.raises(ValueError, match="one length"):
+        setpoint_bumps(pv, op[:-1], sp, h)
+    with pytest.raises(ValueError, match="sample_time"):
+        setpoint_bumps(pv, op, sp, 0.0)
+    assert "only 10 samples" in setpoint_bumps(pv[:10], op[:10], sp[:10], h).reason

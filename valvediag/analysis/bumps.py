@@ -166,6 +166,11 @@ def setpoint_bumps(pv, op, sp, sample_time: float, *, sense: float | None = None
     -------
     SetPointBumps
 
+    Raises
+    ------
+    ValueError
+        Unequal lengths or a non-positive sample time.
+
     Notes
     -----
     A step is a set-point move of more than three noise standard deviations
@@ -206,8 +211,13 @@ def setpoint_bumps(pv, op, sp, sample_time: float, *, sense: float | None = None
     pv = np.asarray(pv, dtype=float).ravel()
     op = np.asarray(op, dtype=float).ravel()
     sp = np.asarray(sp, dtype=float).ravel()
+    if not (pv.size == op.size == sp.size):
+        raise ValueError(f"pv, op and sp must have one length, got {pv.size}, {op.size} and "
+                         f"{sp.size} samples")
+    if not (math.isfinite(h) and h > 0):
+        raise ValueError(f"sample_time must be a positive number of seconds, got {sample_time!r}")
     base = dict(pv=pv, op=op, sp=sp, sample_time=h)
-    if not (pv.size == op.size == sp.size) or pv.size < 2 * MIN_SIDE:
+    if pv.size < 2 * MIN_SIDE:
         return SetPointBumps(found=False, reason=f"only {pv.size} samples", **base)
     noise = white_noise_std(pv)
     if not noise > 0:
