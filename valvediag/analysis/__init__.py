@@ -19,6 +19,7 @@ One loop, pure numerics: arrays in, frozen results out.
 * :mod:`~valvediag.analysis.travel`: a recorded valve position read against
   the OP (follows, lags and jumps, lags without a jump).
 * :mod:`~valvediag.analysis.classify`: one verdict for one record.
+* :mod:`~valvediag.analysis.trend`: the PV-and-OP trend the results' plots draw on.
 """
 from .align import AlignedLoop, align_loop
 from .bi import BacklashIndex, backlash_index

@@ -36,6 +36,7 @@ import numpy as np
 
 from .quality import white_noise_std
 from .signature import loop_sense
+from .trend import pv_op_trend
 
 __all__ = ["SetPointBumps", "setpoint_bumps", "kinks_over_following", "BUMP_HALF_WINDOW_S",
            "BUMP_Z", "MIN_BUMPS_AGAINST", "SLIP_OVER_FOLLOWING"]
@@ -116,15 +117,9 @@ class SetPointBumps:
         -------
         matplotlib.axes.Axes
         """
-        import matplotlib.pyplot as plt
-
-        if ax is None:
-            _, ax = plt.subplots(figsize=(9, 3.5))
-        if self.pv is None:
-            ax.text(0.5, 0.5, self.reason, ha="center", va="center", transform=ax.transAxes)
+        ax, t = pv_op_trend(ax, self.pv, self.op, self.sample_time, self.reason)
+        if t is None:
             return ax
-        t = np.arange(self.pv.size) * self.sample_time
-        ax.plot(t, self.pv, lw=0.7, color="C0", label="PV")
         ax.plot(t, self.sp, lw=0.7, color="k", ls="--", label="SP")
         against = self.z <= -BUMP_Z
         answered = self.z >= BUMP_Z
@@ -133,11 +128,6 @@ class SetPointBumps:
             k = self.index[sel]
             ax.plot(t[k], self.pv[k], mark, mfc="none", color="C3" if mark == "v" else "C2",
                     label=lab)
-        ax2 = ax.twinx()
-        ax2.plot(t, self.op, lw=0.6, color="C1", alpha=0.7)
-        ax2.set_ylabel("OP")
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel("PV")
         ax.legend(loc="upper left", fontsize=7)
         ax.set_title(f"{self.against} of {self.steps} set-point steps answered against the OP")
         return ax

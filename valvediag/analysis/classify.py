@@ -58,6 +58,7 @@ from .quality import bridge_short_gaps, despike, longest_run, white_noise_std
 from .signature import (KIND_SHARE, ValveSignature, cycle_transitions, horch_correlation,
                         stick_slip_events, valve_signature)
 from .travel import ValveTravel, valve_travel
+from .trend import pv_op_trend
 
 __all__ = ["classify_loop", "LoopDiagnosis", "integrating_screen"]
 
@@ -330,25 +331,13 @@ class LoopDiagnosis:
         -------
         matplotlib.axes.Axes
         """
-        import matplotlib.pyplot as plt
-
-        if ax is None:
-            _, ax = plt.subplots(figsize=(9, 3.5))
-        if self.pv is None:
-            ax.text(0.5, 0.5, self.reason, ha="center", va="center", transform=ax.transAxes)
+        ax, t = pv_op_trend(ax, self.pv, self.op, self.sample_time, self.reason, pv_width=0.8)
+        if t is None:
             return ax
-        t = np.arange(self.pv.size) * self.sample_time
-        ax.plot(t, self.pv, color="C0", lw=0.8, label="PV")
         if self.oscillation is not None and self.oscillation.apex_idx.size:
             ai, sg = self.oscillation.apex_idx, self.oscillation.apex_sign
             ax.plot(t[ai[sg > 0]], self.pv[ai[sg > 0]], "v", color="C3", ms=4)
             ax.plot(t[ai[sg < 0]], self.pv[ai[sg < 0]], "^", color="C2", ms=4)
-        if self.op is not None:
-            ax2 = ax.twinx()
-            ax2.plot(t, self.op, color="C1", lw=0.6, alpha=0.7, label="OP")
-            ax2.set_ylabel("OP")
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel("PV")
         ax.set_title(f"{self.verdict} (confidence {self.confidence:.2f})")
         return ax
 

@@ -59,6 +59,7 @@ from scipy.signal import find_peaks, lfilter, oaconvolve
 
 from ..models.valves import apply_valve
 from .quality import most_active_window, stored_points, white_noise_std
+from .trend import pv_op_trend
 
 __all__ = ["ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_events",
            "horch_correlation", "cycle_transitions", "loop_sense", "SIGNATURE_LIMITS"]
@@ -769,21 +770,10 @@ class StickSlipEvents:
         -------
         matplotlib.axes.Axes
         """
-        import matplotlib.pyplot as plt
-
-        if ax is None:
-            _, ax = plt.subplots(figsize=(9, 3.5))
-        if self.pv is None:
-            ax.text(0.5, 0.5, self.reason, ha="center", va="center", transform=ax.transAxes)
+        ax, t = pv_op_trend(ax, self.pv, self.op, self.sample_time, self.reason)
+        if t is None:
             return ax
-        t = np.arange(self.pv.size) * self.sample_time
-        ax.plot(t, self.pv, lw=0.7, color="C0", label="PV")
         ax.plot(t[self.index], self.pv[self.index], "o", mfc="none", color="C3", label="slip")
-        ax2 = ax.twinx()
-        ax2.plot(t, self.op, lw=0.6, color="C1", alpha=0.7)
-        ax2.set_ylabel("OP")
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel("PV")
         ax.set_title(f"{self.consistent} of {self.events} jumps are slips")
         return ax
 
