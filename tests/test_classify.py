@@ -6,7 +6,7 @@ import pytest
 
 from valvediag import VERDICTS, classify_loop, simulate_loop
 from valvediag.analysis.bi import THRESHOLDS
-from valvediag.analysis.oscillation import detect_oscillation
+from valvediag.analysis.oscillation import acf_period, detect_oscillation
 from valvediag.paper.scenarios import draw_cases, record
 
 
@@ -99,6 +99,23 @@ def test_noise_and_random_walk_are_no_oscillation():
     for pv in (noise, walk):
         d = classify_loop(pv, rng.normal(size=5000), sample_time=1.0, process_type="integrating")
         assert d.verdict == "no-oscillation", d.reason
+
+
+def test_acf_period_of_a_drifting_record_is_never_negative():
+    # a random walk's ACF falls straight through zero: with no maximum in the
+    # search range, the parabola's vertex through its edge lay at any lag, at
+    # negative ones too (2 % of these walks), and the scan's log of the
+    # period's ratio raised on one benchmark loop
+    rng = np.random.default_rng(0)
+    for _ in range(400):
+        x = np.cumsum(rng.normal(size=int(rng.integers(50, 3000))))
+        period, _ = acf_period(x)
+        assert not period <= 0
+    # a ramp's ACF falls through zero and on: no maximum, no period
+    assert np.isnan(acf_period(np.arange(1000.0))[0])
+    t = np.arange(2000)
+    period, peak = acf_period(np.sin(2 * np.pi * t / 97.3))
+    assert period == pytest.approx(97.3, abs=0.2) and peak > 0.9
 
 
 def test_a_cycle_in_part_of_a_noisy_record_is_segmented_at_its_period():

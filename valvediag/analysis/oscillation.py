@@ -238,7 +238,8 @@ def acf_period(x, max_lag=None):
     -------
     period : float
         Lag of the first ACF maximum after its first zero crossing [samples],
-        refined by a parabola; NaN if the ACF never crosses zero.
+        refined by a parabola; NaN if the ACF never crosses zero, or only
+        falls after it (no maximum within ``max_lag``).
     acf_at_period : float
         The ACF value there (close to 1 for a clean periodic signal).
     """
@@ -259,12 +260,19 @@ def acf_period(x, max_lag=None):
     if z + 1 >= max_lag:
         return np.nan, 0.0
     k = z + int(np.argmax(ac[z:max_lag]))
+    if k == z:
+        # the ACF only falls after its zero crossing: no maximum, no period
+        return np.nan, 0.0
+    d = 0.0
     if 0 < k < n - 1:
+        # refine only a maximum: where the search range holds none (an ACF
+        # that falls straight through zero, as a drifting record's does) the
+        # parabola through the edge is flat or convex and its vertex lies
+        # anywhere, at negative lags too
         a, b, c = ac[k - 1], ac[k], ac[k + 1]
         den = a - 2 * b + c
-        d = 0.5 * (a - c) / den if den != 0 else 0.0
-    else:
-        d = 0.0
+        if den < 0 and b >= a and b >= c:
+            d = 0.5 * (a - c) / den
     return float(k + d), float(ac[k])
 
 
