@@ -22,6 +22,10 @@ On 2026-11-27 the healthy classes gained load steps (pumps that start and
 stop) and half the healthy flows slow integral action, as the sticky flow
 valves without a cycle have (a detector of events must not read a load's
 step as a slip): the healthy classes' loops changed in every set.
+Later that day the oscillation detector stopped reading a period where the
+autocorrelation has no maximum (a drifting record's); the generator reads
+each draw's cycles with it, so some draws of the quiet classes (sticky and
+healthy levels, healthy flows) changed in every set.
 
 Usage: python benchmarks/bench_realistic.py [--loops N] [--set dev|dev2|heldout|all] [--workers W]
        [--classes C1,C2] [--misses] [--evidence FILE] [--valve-position]
