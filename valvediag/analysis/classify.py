@@ -55,6 +55,7 @@ from .bumps import SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import Oscillation, detect_oscillation
 from .quality import bridge_short_gaps, despike, longest_run, white_noise_std
+from .reversals import reversal_rests
 from .signature import (KIND_SHARE, ValveSignature, cycle_transitions, horch_correlation,
                         stick_slip_events, valve_signature)
 from .travel import ValveTravel, valve_travel
@@ -640,15 +641,33 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        f"{bumps.reason}: a sticky valve, or a loose one inside its dead band "
                        f"(integrating process, loop registry); {method}", **common)
 
+    def rests_at_reversals():
+        """A flow's valve that rests in a dead band at the OP's reversals, or None."""
+        if process_type == "integrating":
+            # a level runs on after the OP turns, whatever its valve does
+            return None
+        rests = reversal_rests(x, u, h, sp=sp[a:b] if sp is not None else None)
+        ev["reversal_rests"] = rests.as_dict()
+        if not rests.found:
+            return None
+        src = "self-regulating process, loop registry" if process_type != "unknown" else \
+            "process type not known, read as self-regulating"
+        return verdict("backlash", (0.5 + 0.4 * min(1.0, rests.rests / 10.0))
+                       * (1.0 if process_type != "unknown" else 0.8),
+                       f"a dead band at the OP's reversals: {rests.reason} ({src}); method: "
+                       "the valve's rests at the OP's reversals", **common)
+
     def slips_or(v, conf, reason):
         """No limit cycle to judge: a sticky valve may still show itself by its slips,
-        by its answer to set-point steps, or by its recorded position."""
+        by its answer to set-point steps, a loose one by its rests at the OP's
+        reversals, or either by its recorded position."""
         if travel is not None and travel.fault:
             return travel_verdict(**common)
         if travel is not None and travel.verdict == "linear":
             # a valve that follows the OP makes no slips
             return verdict(v, conf, f"{reason}; {travel.reason}", **common)
-        return valve_events() or setpoint_steps() or verdict(v, conf, reason, **common)
+        return (valve_events() or setpoint_steps() or rests_at_reversals()
+                or verdict(v, conf, reason, **common))
 
     if quiet is not None:
         return slips_or(*quiet)

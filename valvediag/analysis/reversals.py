@@ -1,0 +1,305 @@
+"""
+A loose valve read at the OP's reversals: the flow runs on with its load while the valve rests.
+
+A self-regulating loop (a flow, a pressure) whose valve follows its OP
+answers every move of the OP within the process's dead time and lag. When
+the load drifts, the controller's output drifts with it and the PV stays
+near its set point; where the load turns, the OP turns too. A valve with a
+dead band (backlash, a loose linkage, a worn positioner) holds its position
+after the OP reverses until the OP has crossed the band: for that while the
+loop is open, the PV runs on with the load, away from its set point, and the
+OP, driven by the growing error, moves on *without the PV answering it*.
+Once the band is taken up the valve follows and the PV comes back, now
+answering the OP. Behind slow integral action that take-up is a slow return,
+not a jump, and a reader of jumps
+(:func:`~valvediag.analysis.signature.stick_slip_events`) sees nothing.
+
+:func:`reversal_rests` reads every leg of the OP between two reversals. It
+finds the PV's excursion against the OP's correction and fits, before the
+PV turned back and after, the PV as a line plus a gain times the OP. A rest
+is an excursion during which the PV did not answer the OP (the gain is
+within two standard errors of zero, and well below the gain after) and after
+which it did. The OP's travel during a rest is the dead band.
+
+A load's step moves the PV first and the OP answers it: the PV's excursion
+then grows *with* the OP's travel (the controller's proportional action
+follows the error it sees), and the fitted gain is large and negative, no
+rest. A linear valve under a drifting load answers the OP at once and
+leaves no excursion beyond the noise.
+
+References
+----------
+.. [1] Kano, M., Maruta, H., Kugemoto, H., Shimizu, K. (2004). Practical model
+   and detection algorithm for valve stiction. IFAC DYCOPS 7, Boston (the
+   valve at rest while the OP moves).
+.. [2] Hägglund, T. (2007). Automatic on-line estimation of backlash in
+   control loops. Journal of Process Control 17, 489-499 (a dead band
+   read from the loop's behaviour at the OP's reversals).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+
+from .quality import white_noise_std
+from .signature import loop_sense
+from .trend import pv_op_trend
+
+__all__ = ["ReversalRests", "reversal_rests", "EXCURSION_Z", "MIN_RESTS", "MIN_REST_SHARE",
+           "SMOOTH_S"]
+
+#: Window of the moving average that reads the OP's reversals and the PV's
+#: excursions through their noise [s] (3 to 31 samples).
+SMOOTH_S = 30.0
+#: The PV's excursion against the OP's correction, in standard errors of the
+#: smoothed PV, that makes a leg read.
+EXCURSION_Z = 6.0
+#: Rests that make a fault ...
+MIN_RESTS = 3
+#: ... and the share of the excursions they must make.
+MIN_REST_SHARE = 1.0 / 3.0
+#: Most legs of the OP read (the first ones of the record).
+MAX_LEGS = 2000
+#: Fewest samples in a fitted stretch.
+MIN_FIT = 6
+
+
+@dataclass(frozen=True)
+class ReversalRests:
+    """A self-regulating loop's PV at its OP's reversals.
+
+    Attributes
+    ----------
+    found : bool
+        At least :data:`MIN_RESTS` rests, making :data:`MIN_REST_SHARE` of
+        the excursions: a valve with a dead band.
+    reason : str
+        One sentence.
+    legs : int
+        Legs of the OP read (from one reversal to the next, set point
+        steady).
+    excursions : int
+        Legs in which the PV moved against the OP's correction by
+        :data:`EXCURSION_Z` standard errors and came at least halfway back
+        before the OP turned again.
+    rests : int
+        Excursions during which the PV did not answer the OP, and after
+        which it did.
+    dead_band : float
+        Median OP travel from the reversal to the PV's turn, over the rests
+        [OP unit]: the dead band, plus what the OP moves within the
+        process's dead time and lag.
+    sense : float
+        +1 when the PV rises with the OP, -1 when it falls, 0 when the
+        record cannot tell (then nothing is found).
+    start, turn : numpy.ndarray
+        Sample of the OP's reversal and of the PV's turn, for each rest.
+    travel : numpy.ndarray
+        The OP's travel during each rest [OP unit].
+    gain_rest, gain_follow : numpy.ndarray
+        The PV's fitted gain on the OP during and after each rest, in the
+        loop's sense [PV unit / OP unit].
+    """
+
+    found: bool
+    reason: str
+    legs: int = 0
+    excursions: int = 0
+    rests: int = 0
+    dead_band: float = math.nan
+    sense: float = 0.0
+    start: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
+    turn: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
+    travel: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    gain_rest: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    gain_follow: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    pv: np.ndarray | None = field(default=None, repr=False)
+    op: np.ndarray | None = field(default=None, repr=False)
+    sample_time: float = 1.0
+
+    def as_dict(self) -> dict:
+        """The figures as plain types."""
+        return {"found": self.found, "legs": self.legs, "excursions": self.excursions,
+                "rests": self.rests,
+                "dead_band": round(self.dead_band, 3) if math.isfinite(self.dead_band) else None,
+                "sense": self.sense}
+
+    def plot(self, ax=None):
+        """PV and OP, with each rest shaded from the OP's reversal to the PV's turn.
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        ax, t = pv_op_trend(ax, self.pv, self.op, self.sample_time, self.reason)
+        if t is None:
+            return ax
+        for k, (a, j) in enumerate(zip(self.start, self.turn)):
+            ax.axvspan(t[a], t[j], color="C3", alpha=0.15, lw=0,
+                       label="valve at rest: the OP moved, the PV ran on" if k == 0 else None)
+        ax.legend(loc="upper left", fontsize=7)
+        ax.set_title(f"{self.rests} rests at {self.excursions} excursions of the PV after the "
+                     f"OP's reversals (dead band about {self.dead_band:.2g})"
+                     if self.rests else "no rest of the valve at the OP's reversals")
+        return ax
+
+
+def _gain(pv: np.ndarray, op: np.ndarray, lo: int, hi: int, noise: float):
+    """The coefficient of ``op`` in ``pv ~ 1 + t + op`` over ``[lo, hi)``, and its std. error."""
+    t = np.arange(hi - lo, dtype=float)
+    A = np.c_[np.ones_like(t), t, op[lo:hi] - op[lo]]
+    AtA = A.T @ A
+    if np.linalg.cond(AtA) > 1e12:
+        return math.nan, math.nan
+    inv = np.linalg.inv(AtA)
+    return float(inv[2] @ (A.T @ pv[lo:hi])), noise * math.sqrt(max(float(inv[2, 2]), 0.0))
+
+
+def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None = None
+                   ) -> ReversalRests:
+    """Find a dead band in a self-regulating loop by the valve's rests at the OP's reversals.
+
+    Parameters
+    ----------
+    pv, op : array_like, shape (n,)
+        One gap-free stretch of a self-regulating loop in automatic [PV unit,
+        OP unit].
+    sample_time : float
+        [s]
+    sp : array_like, shape (n,), optional
+        Set point [PV unit]: legs in which it moved are not read.
+    sense : float, optional
+        +1 when the PV rises with the OP, -1 when it falls; read from the
+        record (:func:`~valvediag.analysis.signature.loop_sense`) when not
+        given.
+
+    Returns
+    -------
+    ReversalRests
+
+    Raises
+    ------
+    ValueError
+        Unequal lengths or a non-positive sample time.
+
+    Notes
+    -----
+    PV and OP are smoothed over :data:`SMOOTH_S` (3 to 31 samples). The
+    OP's reversals are its extremes confirmed by a move of six standard
+    errors of its smoothed noise. In each leg from one reversal ``a`` to the
+    next, the PV's excursion against the OP's correction (the way the OP
+    moves, through the loop's sense, is the way the controller wants the PV
+    to go) peaks at ``j``; it is read when it stands :data:`EXCURSION_Z`
+    standard errors above the noise and the PV comes at least halfway back
+    before the next reversal. Over ``[a, j]`` and over ``[j, k]``, where ``k``
+    is where the OP has moved as far again (or the next reversal), the PV
+    is fitted as ``c0 + c1 t + g OP`` (the load drifting linearly). A rest
+    has ``|g_rest|`` within two standard errors, ``g_follow`` above three,
+    and ``|g_rest|`` plus two standard errors at most half ``g_follow``.
+
+    It assumes a self-regulating process whose PV answers the valve within a
+    few smoothing windows, and a load that drifts smoothly over a rest. It
+    fails where:
+
+    * the process is integrating: a level runs on after the OP turns until
+      the valve's flow crosses the load's, whatever the valve; read it only
+      on loops the registry calls self-regulating;
+    * the dead band is crossed within the process's dead time and lag, or
+      within the smoothing window (a band smaller than the OP's move in
+      :data:`SMOOTH_S`): no rest shows;
+    * the load drifts so slowly that the error of a rest stays within the
+      noise, or turns within the rest;
+    * the valve sticks and slips: it rests too, and a slip that brings the
+      PV back without the OP moving can pass for a take-up; the valve
+      events (:func:`~valvediag.analysis.signature.stick_slip_events`),
+      which read slips, come first;
+    * a cascade's set point moves at every sample (no leg is read).
+
+    A load that steps at an OP's reversal moves the PV first and the OP
+    with it (a negative gain), and a loop that answers its OP leaves no rest
+    (on the realistic benchmark's study and development seeds, 1, 2 and
+    10-16: no healthy or sticky flow valve of 450 read a fault).
+
+    References
+    ----------
+    See the module docstring.
+    """
+    h = float(sample_time)
+    pv = np.asarray(pv, dtype=float).ravel()
+    op = np.asarray(op, dtype=float).ravel()
+    if pv.size != op.size or (sp is not None and np.size(sp) != pv.size):
+        raise ValueError(f"pv, op and sp must have one length, got {pv.size}, {op.size}"
+                         + (f" and {np.size(sp)}" if sp is not None else "") + " samples")
+    if not (math.isfinite(h) and h > 0):
+        raise ValueError(f"sample_time must be a positive number of seconds, got {sample_time!r}")
+    base = dict(pv=pv, op=op, sample_time=h)
+    m = int(np.clip(round(SMOOTH_S / h), 3, 31))
+    if pv.size < 8 * m or not (np.all(np.isfinite(pv)) and np.all(np.isfinite(op))):
+        return ReversalRests(found=False, reason=f"only {pv.size} samples, or gaps", **base)
+    pv_noise, op_noise = white_noise_std(pv), white_noise_std(op)
+    if not (pv_noise > 0 and op_noise > 0):
+        return ReversalRests(found=False, reason="the PV or the OP has no measurable noise",
+                             **base)
+    if sense is None:
+        sense = loop_sense(pv, op)
+    base["sense"] = float(sense)
+    if sense == 0:
+        return ReversalRests(found=False, reason="the sense in which the OP moves the PV "
+                             "cannot be read", **base)
+    from ..workbench.kernels import turning_points   # numba's, compiled on first use
+
+    pvs = uniform_filter1d(pv, m, mode="nearest")
+    ops = uniform_filter1d(op, m, mode="nearest")
+    se_s = pv_noise / math.sqrt(m)
+    turns, _, _ = turning_points(ops, 6.0 * op_noise / math.sqrt(m))
+    turns = turns[(turns >= m) & (turns < pv.size - m)]
+    sp = None if sp is None else np.asarray(sp, dtype=float).ravel()
+    legs = excursions = 0
+    rows = []
+    for a, b in zip(turns[:MAX_LEGS], turns[1:MAX_LEGS + 1]):
+        if b - a < 2 * MIN_FIT or (sp is not None and not np.ptp(sp[a:b]) <= 3.0 * pv_noise):
+            continue
+        legs += 1
+        d = 1.0 if ops[b] > ops[a] else -1.0
+        dev = -d * sense * (pvs[a:b] - pvs[a])
+        j = int(np.argmax(dev))
+        if dev[j] < EXCURSION_Z * se_s or dev[j] - dev[-1] < 0.5 * dev[j]:
+            continue
+        # the stretch after the turn: until the OP has moved as far again
+        travel = abs(ops[a + j] - ops[a])
+        far = np.flatnonzero(np.abs(ops[a + j:b + 1] - ops[a + j]) >= travel)
+        k = a + j + (int(far[0]) if far.size else b - a - j)
+        if j + 1 < MIN_FIT or k - (a + j) + 1 < MIN_FIT:
+            continue
+        excursions += 1
+        # the PV on the (smoothed) OP: the OP's own noise is the PV's, turned
+        # round by the proportional action, and would bias the gain
+        g_r, se_r = _gain(pv, ops, a, a + j + 1, pv_noise)
+        g_f, se_f = _gain(pv, ops, a + j, k + 1, pv_noise)
+        g_r, g_f = sense * g_r, sense * g_f
+        if abs(g_r) <= 2.0 * se_r and g_f >= 3.0 * se_f and abs(g_r) + 2.0 * se_r <= 0.5 * g_f:
+            rows.append((a, a + j, travel, g_r, g_f))
+    if not legs:
+        return ReversalRests(found=False, reason="no reversal of the OP beyond its noise with "
+                             "the set point steady", **base)
+    a_, j_, trav, g_r, g_f = (np.asarray(c) for c in zip(*rows)) if rows else \
+        (np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0), np.zeros(0))
+    rests = len(rows)
+    band = float(np.median(trav)) if rests else math.nan
+    found = rests >= MIN_RESTS and rests >= MIN_REST_SHARE * excursions
+    if found:
+        reason = (f"at {rests} of {excursions} excursions of the PV after the OP's reversals "
+                  f"the PV ran on with its load while the OP moved about {band:.2g} back, "
+                  "answering it not at all, then followed the OP: a valve that rests in a "
+                  f"dead band of about {band:.2g} at every reversal")
+    else:
+        reason = (f"{rests} rests of the valve at {excursions} excursions of the PV in "
+                  f"{legs} legs of the OP (a fault needs {MIN_RESTS} and a third of the "
+                  "excursions)")
+    return ReversalRests(found=found, reason=reason, legs=legs, excursions=excursions,
+                         rests=rests, dead_band=band, start=a_.astype(int), turn=j_.astype(int),
+                         travel=trav.astype(float), gain_rest=g_r.astype(float),
+                         gain_follow=g_f.astype(float), **base)
