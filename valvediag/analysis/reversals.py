@@ -205,8 +205,10 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
     fails where:
 
     * the process is integrating: a level runs on after the OP turns until
-      the valve's flow crosses the load's, whatever the valve; read it only
-      on loops the registry calls self-regulating;
+      the valve's flow crosses the load's, whatever the valve; the scan does
+      not read it on loops the registry calls integrating (read anyway, none
+      of the 280 level loops of the realistic benchmark's study seeds, sticky,
+      loose or healthy, showed a fault);
     * the dead band is crossed within the process's dead time and lag, or
       within the smoothing window (a band smaller than the OP's move in
       :data:`SMOOTH_S`): no rest shows;
@@ -221,7 +223,8 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
     A load that steps at an OP's reversal moves the PV first and the OP
     with it (a negative gain), and a loop that answers its OP leaves no rest
     (on the realistic benchmark's study and development seeds, 1, 2 and
-    10-16: no healthy or sticky flow valve of 450 read a fault).
+    10-16: none of 304 healthy, disturbed or sticky flow loops read a fault,
+    and 45 of 76 loose flow valves without a cycle did).
 
     References
     ----------
@@ -249,7 +252,9 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
     if sense == 0:
         return ReversalRests(found=False, reason="the sense in which the OP moves the PV "
                              "cannot be read", **base)
-    from ..workbench.kernels import turning_points   # numba's, compiled on first use
+    # the workbench's compiled kernel, imported here: reading a loop's
+    # verdict needs no more of the workbench than this
+    from ..workbench.kernels import turning_points
 
     pvs = uniform_filter1d(pv, m, mode="nearest")
     ops = uniform_filter1d(op, m, mode="nearest")

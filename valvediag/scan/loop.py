@@ -477,9 +477,9 @@ def signature_size(evidence: Mapping, fault: str) -> dict:
         stick band, and a level's answer to its set-point steps gives no
         band at all; no size is given then (NaN, confidence 0). A dead band
         found by the valve's rests at the OP's reversals is the OP's median
-        travel during the rests (confidence 0.5: within about 15 % of the
-        simulated band on the realistic benchmark's study seeds, a little
-        under it, as the smoothed OP turns before the raw one).
+        travel during the rests (confidence 0.5: 0.85-1.02 of the simulated
+        band, median 0.94, on 37 loose flow valves of the realistic
+        benchmark's study seeds).
     """
     sig = evidence.get("signature") or {}
     S, J = sig.get("S"), sig.get("J")
