@@ -642,7 +642,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        f"(integrating process, loop registry); {method}", **common)
 
     def rests_at_reversals():
-        """A flow's valve that rests in a dead band at the OP's reversals, or None."""
+        """A flow's valve that rests in a dead band at the OP's reversals, or None
+        (read where no limit cycle, or no valve model of the cycle, names a fault)."""
         if process_type == "integrating":
             # a level runs on after the OP turns, whatever its valve does
             return None
@@ -716,8 +717,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         # a sticky flow valve's slips make an irregular cycle of their own, at
         # least one slip a cycle; a ringing loop's turns pass for a slip only
         # now and then (a level's kinks are not read here)
-        found = valve_events("self-regulating", RESONANCE_SLIPS * osc.cycles) if selfreg \
-            else None
+        found = (valve_events("self-regulating", RESONANCE_SLIPS * osc.cycles)
+                 or rests_at_reversals()) if selfreg else None
         if found is not None:
             return found
         few = ev.get("stick_slip_too_few")
@@ -737,7 +738,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                                      process_screen=pscreen, shape=shape, **common)
         # a valve the signature cannot read in the cycle may still show its events
         return d if d.verdict in ("stiction", "backlash", "undecided") else \
-            (valve_events("self-regulating") or d)
+            (valve_events("self-regulating") or rests_at_reversals() or d)
     valve_faulty = travel is not None and travel.fault
     if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR and not valve_faulty:
         conf = c_data * proc_conf * (0.5 + 0.5 * (1.0 - shape.pv_distortion / DIST_LINEAR))
