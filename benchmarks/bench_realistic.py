@@ -25,7 +25,10 @@ step as a slip): the healthy classes' loops changed in every set.
 Later that day the oscillation detector stopped reading a period where the
 autocorrelation has no maximum (a drifting record's); the generator reads
 each draw's cycles with it, so some draws of the quiet classes (sticky and
-healthy levels, healthy flows) changed in every set.
+healthy levels, healthy flows) changed in every set. Since then the
+generator counts cycles with its own crossings of the control error
+(``valvediag.synth.plant.cycle_stats``), independent of the method under
+test; that change redrew loops in every set once more.
 
 Usage: python benchmarks/bench_realistic.py [--loops N] [--set dev|dev2|heldout|all] [--workers W]
        [--classes C1,C2] [--misses] [--evidence FILE] [--valve-position]

@@ -438,3 +438,32 @@ def test_a_sawtooths_level_stays_within_its_span():
         loop = draw_loop("level-stiction-sawtooth", np.random.default_rng([13, 2, i]))
         assert 0.0 <= loop.pv.min() and loop.pv.max() <= 100.0
         assert np.ptp(np.percentile(loop.op, [1, 99])) > 0.5
+
+
+def test_cycle_stats_reads_a_noisy_square_waves_period():
+    from valvediag.synth.plant import cycle_stats
+
+    rng = np.random.default_rng(4)
+    t = np.arange(6000) * 2.0
+    x = np.sign(np.sin(2 * np.pi * t / 300.0)) + 0.1 * rng.standard_normal(t.size)
+    period, amp, cycles, cv = cycle_stats(x, 2.0)
+    assert period == pytest.approx(300.0, rel=0.02)
+    assert 1.0 < amp < 1.0 + 4 * 0.1        # half the swing, peaks of the noise included
+    # 40 periods from a rising start: 39 upward crossings, 38 whole cycles between them
+    assert cycles == 38 and cv < 0.05
+    # white noise alone crosses at random: no regular period
+    assert cycle_stats(rng.standard_normal(6000), 2.0)[3] > 1 / 3
+
+
+def test_the_benchmark_generator_does_not_count_cycles_with_the_scans_detector(monkeypatch):
+    """Which draws a class accepts must not move with the method under test."""
+    import valvediag.analysis.oscillation as osc
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    def refuse(*a, **k):
+        raise AssertionError("the generator called the scan's oscillation detector")
+
+    monkeypatch.setattr(osc, "detect_oscillation", refuse)
+    for ci, klass in enumerate(CLASSES):
+        loop = draw_loop(klass, np.random.default_rng([7, ci, 0]))
+        assert loop.klass == klass

@@ -34,8 +34,11 @@ second sample, 1-10 s, as a 1-4 h snapshot around an event or a full day,
 some exception-and-swinging-door compressed. Every draw is rejected and
 redrawn until the record shows its class (enough cycles or events, at least
 15 samples per period, counted once each), so the truth is what the data can
-show, and until the PV stays within its 0-100 % span (a level the valve at
-its limit cannot hold runs away, which is no record of any class).
+show. The cycles are counted by the generator's own crossings of the control
+error (:func:`valvediag.synth.plant.cycle_stats`), not by the scan's detector:
+the sets stay the same when the method under test changes. And redrawn
+until the PV stays within its 0-100 % span (a level the valve at its limit
+cannot hold runs away, which is no record of any class).
 """
 from __future__ import annotations
 
@@ -47,7 +50,7 @@ import numpy as np
 
 from ..analysis.quality import stored_points, white_noise_std
 from ..models.closedloop import simulate_loop
-from .plant import exception_deadband, swinging_door
+from .plant import cycle_stats, exception_deadband, swinging_door
 
 __all__ = ["CLASSES", "SynthLoop", "draw_loop", "loop_set", "alternating_steps"]
 
@@ -192,12 +195,20 @@ def _record(pv, op, sp, rng, compressed: bool, sigma: float):
     return pv, op, sp
 
 
-def _cycles(pv: np.ndarray, h: float):
-    """(period [s], cycles) of the record, from the oscillation detector."""
-    from ..analysis.oscillation import detect_oscillation
+def _cycles(pv: np.ndarray, sp: np.ndarray, h: float):
+    """(period [s], cycles, regularity) of the record's control error.
 
-    osc = detect_oscillation(pv, h)
-    return osc.period, osc.cycles, osc.regularity
+    Counted by the generator's own crossings (:func:`cycle_stats`), not by
+    the scan's oscillation detector, so that which draws a class accepts
+    does not move with the method under test. The regularity is written as
+    Thornhill's (mean period over three standard deviations, here robust):
+    above 1 the period varies by less than a third.
+    """
+    period, _, cycles, cv = cycle_stats(np.asarray(pv) - np.asarray(sp), h)
+    if not np.isfinite(cv):
+        return period, float(cycles), 0.0
+    regularity = 1.0 / (3.0 * cv) if cv > 0 else math.inf
+    return period, float(cycles), regularity
 
 
 def _visible_slope_slips(mv: np.ndarray, jump: float, gain: float, noise: float,
@@ -405,7 +416,7 @@ def _try(klass: str, rng: np.random.Generator):
     p.update(tau_s=tau, kc=sim["kc"], ti_s=sim["ti"], dead_time_s=sim.get("dead_time", 0.0),
              lag_s=sim.get("lag", 0.0), valve=valve, **vp, noise_sigma=sigma)
     # does the record show its class?
-    period, cycles, regularity = _cycles(pv, h)
+    period, cycles, regularity = _cycles(pv, sp, h)
     p.update(period_s=period, cycles=cycles)
     if cycle_expected:
         if not (np.isfinite(period) and period >= 15 * h and cycles >= 4 and regularity > 1.0):

@@ -42,7 +42,7 @@ import polars as pl
 from ..models.closedloop import simulate_loop
 
 __all__ = [
-    "synth_plant", "SynthPlant", "swinging_door", "exception_deadband",
+    "synth_plant", "SynthPlant", "swinging_door", "exception_deadband", "cycle_stats",
     "CATEGORY_SHARES", "CATEGORY_VERDICT", "TRUTH_VERDICTS", "DIGITAL_STATES", "STATUS_FLAGS",
     "FORMATS", "LOOPS_COLUMNS", "TRUTH_COLUMNS", "EXPORT_COLUMNS",
 ]
@@ -250,16 +250,41 @@ def swinging_door(x, deviation: float, max_interval: float | None = None, t=None
 
 # ------------------------------------------------------------ cycle analysis
 
-def _cycle_stats(x, h):
-    """Period, amplitude and regularity of a signal's oscillation.
+def cycle_stats(x, h):
+    """Period, amplitude and regularity of a simulated record's oscillation.
 
-    Crossings of a hysteresis band (30 % of the half range, centred on the
-    mid-range) delimit the cycles; crossing times are interpolated linearly.
+    The synthetic data's own count of cycles, independent of the scan's
+    oscillation detector (:func:`valvediag.analysis.detect_oscillation`), so
+    that what a generator labels as cycling does not depend on the method
+    under test.
 
-    Returns (median period [s], median amplitude [unit of x], number of
-    cycles, robust coefficient of variation of the period (1.4826 MAD /
-    median), so that one odd cycle after a set-point step does not count);
-    NaN/0 when there is no oscillation.
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+        The record, gap-free [any unit].
+    h : float
+        Sample time [s].
+
+    Returns
+    -------
+    period : float
+        Median period [s]; NaN when fewer than three upward crossings.
+    amplitude : float
+        Median half peak-to-peak amplitude [unit of x].
+    cycles : int
+        Number of whole cycles between upward crossings.
+    cv : float
+        Robust coefficient of variation of the period (1.4826 MAD / median),
+        so that one odd cycle after a set-point step does not count.
+
+    Notes
+    -----
+    Crossings of a hysteresis band (30 % of the half range between the 1st
+    and 99th percentiles, centred on the mid-range) delimit the cycles;
+    crossing times are interpolated linearly. A record whose oscillation is
+    smaller than a third of its range (a cycle riding on large steps or
+    drift) shows no cycle here, and noise larger than the band makes
+    crossings at random (a large ``cv``).
     """
     x = np.asarray(x, dtype=float)
     if x.size < 4:
@@ -625,7 +650,7 @@ def _pilot(loops, seed, tm=None):
             pv = np.atleast_2d(sim.pv)
             for i, lp in enumerate(sel):
                 a, b = span_of[lp.idx]
-                out[lp.idx] = _cycle_stats(pv[i, a:b], h[i])
+                out[lp.idx] = cycle_stats(pv[i, a:b], h[i])
             del sim, pv
     return out
 
@@ -715,10 +740,10 @@ def _simulate(loops, tm, seed, process, linear):
                 cop = op[rows_i[1:], n_warm:].sum(axis=0)
                 out["clean_pv"] = cpv[::tm.m].copy()
                 out["clean_op"] = cop[::tm.m].copy()
-                out["stats_pv"] = _cycle_stats(cpv, tm.h)
-                out["stats_op"] = _cycle_stats(cop, tm.h)
+                out["stats_pv"] = cycle_stats(cpv, tm.h)
+                out["stats_op"] = cycle_stats(cop, tm.h)
             else:
-                out["stats_pv"] = _cycle_stats(pv[b, n_warm:] - sp[b, n_warm:], tm.h)
+                out["stats_pv"] = cycle_stats(pv[b, n_warm:] - sp[b, n_warm:], tm.h)
             yield lp, out
         del sim, pv, op, mv, sp
 
