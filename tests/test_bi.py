@@ -214,18 +214,28 @@ def test_lagged_turns_find_the_sharp_turn_behind_a_lag():
     assert len(ax.lines) == 3
 
 
-def test_a_lag_behind_a_sticky_valve_puts_a_doubt_on_the_backlash_index():
+@pytest.mark.parametrize("kc,ti", [(2.0, 300.0), (1.5, 250.0)])
+def test_a_lag_behind_a_sticky_valve_puts_a_doubt_on_the_backlash_index(kc, ti):
     from valvediag import classify_loop
 
     # a level loop with a 10 s lag between a sticky valve and the PV (2 % of
-    # the period), 1 % noise: the BI reads backlash, and the verdict says
-    # that the turns may be a lag's, at a lower confidence
+    # the period), 1 % noise: the BI reads backlash, and the turns fitted
+    # behind a lag are sharp
     sim = simulate_loop(sample_time=0.5, n_samples=43200, sp=50.0, process="integrating",
-                        tau=200.0, kc=2.0, ti=300.0, load=50.0, lag=10.0, valve="kano",
+                        tau=200.0, kc=kc, ti=ti, load=50.0, lag=10.0, valve="kano",
                         valve_params={"S": 3.0, "J": 2.4}, sp_step=1.0, sp_step_time=60.0)
     pv, op = sim.pv[7200::2], sim.op[7200::2]
     pv = pv + np.random.default_rng(0).normal(0, 0.01 * np.ptp(pv), pv.size)
     d = classify_loop(pv, op, sample_time=1.0, process_type="integrating")
-    assert d.verdict == "backlash" and "may stick instead" in d.reason, d.reason
     lt = d.evidence["lagged_turns"]
     assert lt["lag_s"] == pytest.approx(10.0, rel=0.35) and lt["bi"] <= 1.5
+    if kc == 2.0:
+        # the level turns after the OP's reversal (a slip behind the lag):
+        # the turns' timing names the slip
+        assert d.verdict == "stiction" and d.evidence["turn_timing"]["kind"] == "stiction"
+    else:
+        # stronger integral action against the ramps: the controller reverses
+        # late, the timing reads nothing, and the verdict says that the turns
+        # may be a lag's, at a lower confidence
+        assert d.evidence["turn_timing"]["kind"] == ""
+        assert d.verdict == "backlash" and "may stick instead" in d.reason, d.reason

@@ -29,8 +29,10 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    between its limits (its sharp turns give way only where the ramps are
    curved and a linear valve explains the valve position the PV's slope
    implies: a load's turns, stored by swinging door, meet at sharp corners
-   too); on a self-regulating process (a flow, pressure,
-   temperature), where the BI does not apply, the valve signature decides.
+   too); rounded turns that come after the OP's reversals are a slip behind
+   a lag, not a dead band (:func:`valvediag.analysis.turn_timing.turn_timing`).
+   On a self-regulating process (a flow, pressure, temperature), where the
+   BI does not apply, the valve signature decides.
 
 Where the valve's position is recorded (``mv``), it is read against the OP
 directly (:func:`valvediag.analysis.travel.valve_travel`), with no process
@@ -60,6 +62,7 @@ from .signature import (KIND_SHARE, ValveSignature, cycle_transitions, horch_cor
                         stick_slip_events, valve_signature)
 from .travel import ValveTravel, valve_travel
 from .trend import pv_op_trend
+from .turn_timing import SLIP_SHARE, turn_timing
 
 __all__ = ["classify_loop", "LoopDiagnosis", "integrating_screen"]
 
@@ -812,6 +815,18 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         conf = 0.3 * c_data * proc_conf
         reason = (f"a valve nonlinearity, but the Backlash Index {bres.bi:.2f} lies between "
                   f"{lo:g} and {hi:g}: stiction and backlash cannot be told apart")
+    if bres_verdict in ("backlash", "undecided"):
+        # a rounded turn is a dead band's only if the level has turned by the
+        # time the OP reverses; a slip behind a lag turns it after
+        timing = turn_timing(x, u, h, osc.period)
+        ev["turn_timing"] = timing.as_dict()
+        if timing.kind == "stiction":
+            conf = c_data * proc_conf * (0.5 + 0.4 * min(1.0, timing.share / (2 * SLIP_SHARE)))
+            reason = (f"rounded turns (Backlash Index {bres.bi:.2f}), but {timing.reason}, "
+                      "which a dead band cannot do (a loose valve moves only while the OP moves "
+                      "on); method: Backlash Index and the turns' timing against the OP's "
+                      "reversals")
+            bres_verdict = "stiction"
     if bres_verdict != "stiction" and sharp_behind_lag(turns):
         conf *= LAG_DOUBT
         reason += (f"; but the turns are also those of a sharp turn behind a {turns.lag:.3g} s "

@@ -1,0 +1,79 @@
+"""A level's rounded turns against the OP's reversals: a slip behind a lag is not a dead band."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from valvediag.analysis import classify_loop, detect_oscillation
+from valvediag.analysis.bi import backlash_index
+from valvediag.analysis.turn_timing import SLIP_SHARE, turn_timing
+from valvediag.models.closedloop import simulate_loop
+
+H = 1.0
+
+
+def level_cycle(valve: str, lag: float, seed: int = 3):
+    """A PI level loop (tau 200 s, Kc 3, Ti 300 s, dead time 2 s) in its valve's limit cycle,
+    behind a first-order lag [s]: 6 h at 1 s after an hour's warm-up."""
+    params = {"S": 3.0, "J": 2.4} if valve == "kano" else {"DB": 3.0}
+    r = simulate_loop(kc=3.0, ti=300.0, sample_time=H, n_samples=7 * 3600,
+                      process="integrating", tau=200.0, lag=lag, dead_time=2.0, valve=valve,
+                      valve_params=params, sp=50.0, load=50.0, sp_step=1.0, sp_step_time=60.0,
+                      noise_std=0.02, seed=seed,
+                      valve_noise_band=0.36 if valve == "kano" else 0.0)
+    return r.pv[3600:], r.op[3600:], r.sp[3600:]
+
+
+@pytest.mark.parametrize("lag", [6.0, 12.0])
+def test_a_sticky_level_behind_a_lag_turns_after_the_op_a_loose_one_before(lag):
+    pv, op, _ = level_cycle("kano", lag)
+    period = detect_oscillation(pv, H).period
+    # the lag (2-4 % of the period) rounds the slip's turn: the index reads a dead band
+    assert backlash_index(pv, H).verdict == "backlash"
+    sticky = turn_timing(pv, op, H, period)
+    assert sticky.kind == "stiction" and sticky.turns >= 100
+    assert sticky.share >= 2 * SLIP_SHARE
+
+    pv, op, _ = level_cycle("backlash", lag)
+    loose = turn_timing(pv, op, H, detect_oscillation(pv, H).period)
+    # a loose valve moves only while the OP moves on: the level has turned by its reversal
+    assert loose.kind == "" and loose.turns >= 20
+    assert loose.share < SLIP_SHARE / 4
+
+
+def test_classify_names_the_slip_behind_a_lag_and_keeps_the_dead_band():
+    pv, op, sp = level_cycle("kano", 12.0)
+    d = classify_loop(pv, op, sp, sample_time=H, process_type="integrating")
+    assert d.verdict == "stiction"
+    assert d.evidence["turn_timing"]["kind"] == "stiction"
+    assert "turns after the OP has reversed" in d.reason
+
+    pv, op, sp = level_cycle("backlash", 12.0)
+    d = classify_loop(pv, op, sp, sample_time=H, process_type="integrating")
+    assert d.verdict == "backlash"
+    assert d.evidence["turn_timing"]["kind"] == ""
+
+
+def test_turn_timing_abstains_on_coarse_or_bad_records():
+    pv, op, _ = level_cycle("kano", 12.0)
+    period = detect_oscillation(pv, H).period
+    # fewer than 20 samples per period: no turn is placed
+    coarse = turn_timing(pv[::20], op[::20], 20 * H, period)
+    assert coarse.kind == "" and coarse.turns == 0 and "too coarse" in coarse.reason
+    assert turn_timing(pv, op, H, float("nan")).kind == ""
+    with pytest.raises(ValueError, match="equal length"):
+        turn_timing(pv, op[:-1], H, period)
+    with pytest.raises(ValueError, match="positive"):
+        turn_timing(pv, op, 0.0, period)
+
+
+def test_turn_timing_plot_marks_the_reversals():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    pv, op, _ = level_cycle("kano", 12.0)
+    t = turn_timing(pv[:4000], op[:4000], H, detect_oscillation(pv, H).period)
+    ax = t.plot()
+    assert len(ax.get_title()) > 0
+    assert len(ax.lines) >= 1 + t.turns          # the PV and a line at each reversal read
+    assert np.isfinite(t.as_dict()["share_after_op_reversal"])
