@@ -54,6 +54,32 @@ def test_classify_names_the_slip_behind_a_lag_and_keeps_the_dead_band():
     assert d.evidence["turn_timing"]["kind"] == ""
 
 
+def test_an_op_stored_far_apart_places_no_reversal(monkeypatch):
+    """A loose valve's OP stored by exception with a deadband of a tenth or a
+    fifth of its swing: read back by straight lines, its extremes fall
+    anywhere between two stored points, which made a dead band read as a
+    slip (the synthetic plant's loose level valves, no lag, 0.36-0.82 after
+    the reversal). Such turns are not read; an OP stored finely still is."""
+    import valvediag.analysis.turn_timing as tt
+    from valvediag.synth.plant import exception_deadband
+
+    pv, op, _ = level_cycle("backlash", 0.0)
+    period = detect_oscillation(pv, H).period
+    swing = np.ptp(np.percentile(op, [5, 95]))
+
+    def stored(deadband):
+        keep = np.flatnonzero(exception_deadband(op, deadband))
+        return np.interp(np.arange(op.size), keep, op[keep])
+
+    for share in (0.1, 0.2):
+        assert turn_timing(pv, stored(share * swing), H, period).turns == 0
+    fine = turn_timing(pv, stored(0.002 * swing), H, period)
+    assert fine.kind == "" and fine.turns >= 20 and fine.share < SLIP_SHARE / 4
+    # without the guard the coarsely stored OP reads a slip
+    monkeypatch.setattr(tt, "OP_RESOLUTION", np.inf)
+    assert turn_timing(pv, stored(0.2 * swing), H, period).kind == "stiction"
+
+
 def test_turn_timing_abstains_on_coarse_or_bad_records():
     pv, op, _ = level_cycle("kano", 12.0)
     period = detect_oscillation(pv, H).period

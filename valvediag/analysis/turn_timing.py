@@ -45,10 +45,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import savgol_filter
 
-from .quality import white_noise_std
+from .quality import stored_points, white_noise_std
 from .trend import pv_op_trend
 
-__all__ = ["TurnTiming", "turn_timing", "SLIP_SHARE", "MIN_TURNS"]
+__all__ = ["TurnTiming", "turn_timing", "SLIP_SHARE", "MIN_TURNS", "OP_RESOLUTION"]
 
 #: Median share of a turn after the OP's reversal at and above which the
 #: level turns behind the valve's slip (the loose level valves of the
@@ -63,6 +63,10 @@ MIN_SPP = 20.0
 RAMP_FROM, RAMP_TO = 0.2, 0.5
 #: Fewest samples on a ramp.
 MIN_RAMP = 5
+#: Widest span between the OP's stored points around a reversal read, as a
+#: share of the period (a compressed OP's extreme lies anywhere between two
+#: stored points).
+OP_RESOLUTION = 0.02
 
 
 @dataclass(frozen=True)
@@ -172,7 +176,12 @@ def turn_timing(pv, op, sample_time: float, period: float) -> TurnTiming:
     ``e_b`` and ``e_a`` the level's distance from the two lines at ``i``, the
     share ``e_a / (e_a + e_b)`` is the part of the turn still to come. Only
     turns (ramps of opposite slope) whose distances stand three standard
-    errors of the level's noise above zero are read.
+    errors of the level's noise above zero are read, and only where the
+    OP's stored points around the reversal lie within
+    :data:`OP_RESOLUTION` of the period (an OP compressed by exception and
+    read back by straight lines has its extreme anywhere between two stored
+    points: on the synthetic plant's loose level valves, whose OPs are
+    stored so, turns read 0.36-0.82 after the reversal without this guard).
 
     A dead band reads at most its lag's tail, about ``2 (L / T_f)^2`` for a
     lag ``L`` and a valve that follows the OP for ``T_f``; a slip behind a
@@ -218,7 +227,15 @@ def turn_timing(pv, op, sample_time: float, period: float) -> TurnTiming:
     ab, bb = i0 + (RAMP_FROM * d0).astype(int), i0 + (RAMP_TO * d0).astype(int)
     aa, ba = i + (RAMP_FROM * d1).astype(int), i + (RAMP_TO * d1).astype(int)
     k = max(1, int(round(m / 100)))
-    ok = (bb - ab >= MIN_RAMP) & (ba - aa >= MIN_RAMP) & (i - k >= 0) & (i + k + 1 <= x.size)
+    # the OP's reversal must be where the historian stored it: an OP read
+    # back between stored points far apart places its extreme anywhere
+    # between them
+    kept = stored_points(u)
+    j = np.searchsorted(kept, i, side="right")
+    gap = kept[np.minimum(j, kept.size - 1)] - kept[np.maximum(j - 1, 0)]
+    resolved = gap <= max(2.0, OP_RESOLUTION * m)
+    ok = ((bb - ab >= MIN_RAMP) & (ba - aa >= MIN_RAMP) & (i - k >= 0) & (i + k + 1 <= x.size)
+          & resolved)
     i, ab, bb, aa, ba = i[ok], ab[ok], bb[ok], aa[ok], ba[ok]
     t = np.arange(x.size, dtype=float)
     cs = np.r_[0.0, np.cumsum(x)]
