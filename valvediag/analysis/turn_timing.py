@@ -54,7 +54,7 @@ __all__ = ["TurnTiming", "turn_timing", "SLIP_SHARE", "MIN_TURNS", "OP_RESOLUTIO
 #: level turns behind the valve's slip (the loose level valves of the
 #: realistic benchmark's study seeds 10-16 read at most 0.17).
 SLIP_SHARE = 0.2
-#: Turns that must be read for either.
+#: Turns that must be read before the share names anything.
 MIN_TURNS = 3
 #: Fewest samples per period: coarser records do not place a turn.
 MIN_SPP = 20.0
