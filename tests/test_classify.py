@@ -92,6 +92,28 @@ def test_unknown_integrating_loop_is_screened_as_integrating():
     assert d.process_screen == "integrating" and d.verdict == "stiction"
 
 
+@pytest.mark.parametrize("seed", [0, 3])
+def test_a_healthy_flow_of_unknown_type_is_not_read_as_a_level(seed):
+    # pumps start and stop: the flow dips at each step of its load and turns
+    # back at a sharp corner as the OP creeps; read as a level those corners
+    # are slips, so a record of unknown type is read as a flow
+    from valvediag.analysis.signature import stick_slip_events
+    from valvediag.synth.cases import alternating_steps
+
+    rng = np.random.default_rng(seed)
+    h, n = 5.0, 17280
+    load = alternating_steps(rng, n, every_s=(1800.0, 5400.0), size=(1.0, 3.0), sample_time=h)
+    load = load + np.cumsum(rng.normal(0.0, 0.02, n))
+    run = simulate_loop(kc=0.6, ti=40.0, sample_time=h, n_samples=n, process="self-regulating",
+                        tau=50.0, lag=3.0, dead_time=5.0, sp=50.0, load_profile=load,
+                        noise_std=0.15, seed=seed)
+    as_level = stick_slip_events(run.pv, run.op, h, process="integrating", sp=run.sp)
+    assert as_level.found and as_level.kind == "stiction"          # the hazard is real
+    d = classify_loop(run.pv, run.op, run.sp, sample_time=h, process_type="unknown")
+    assert d.verdict == "no-oscillation", d.reason
+    assert "integrating" not in (d.evidence.get("stick_slip") or {}).get("process", "")
+
+
 def test_noise_and_random_walk_are_no_oscillation():
     rng = np.random.default_rng(2)
     noise = rng.normal(size=5000)

@@ -10,7 +10,11 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    (:func:`valvediag.analysis.signature.stick_slip_events`: a sticky valve
    without a limit cycle gets ``stiction`` from its slips, a loose one
    ``backlash`` from its dead-band take-ups; the events are also read on a
-   self-regulating loop whose cycle the valve signature cannot explain).
+   self-regulating loop whose cycle the valve signature cannot explain). A
+   record of unknown process type is read as a flow: a level's kinks are
+   read only where the registry calls the process integrating, for a
+   healthy flow's answers to its load's steps kink its record as a sticky
+   level valve's slips do.
 3. ``linear-oscillation``: a regular oscillation that no valve nonlinearity
    explains (tuning or an external disturbance); send no one to the valve.
    A sinusoidal PV, an OP that stands still, a valve position implied by
@@ -581,8 +585,11 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         the registry has none (a square load's turns on a flow are no level's
         slips). ``min_events``: the fewest valve events that count."""
         ev_sp = sp[a:b] if sp is not None else None
+        # a level's kinks are read only where the process is known to
+        # integrate: a healthy flow's answer to a load's step kinks its record
+        # as a slip kinks a level's, and a loose flow valve's take-ups do too
         kinds = (process_type,) if process_type != "unknown" else \
-            (screened,) if screened != "unknown" else ("self-regulating", "integrating")
+            (screened,) if screened != "unknown" else ("self-regulating",)
         if pv_compressed:
             kinds = tuple(k for k in kinds if k != "integrating")
         for kind in kinds:
@@ -608,17 +615,6 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                 what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
                         }.get(slips.kind, "valve events")
                 conf = 0.5 + 0.4 * min(1.0, slips.consistent / 10.0)
-                if len(kinds) > 1 and kind == "integrating":
-                    # read as a flow the record showed nothing; read as a level
-                    # its kinks are slips, but a loose flow valve's take-ups
-                    # kink a flow's record the same way: the type decides
-                    return verdict(
-                        "undecided", 0.6 * conf,
-                        f"valve events: read as a level, {slips.reason}; read as a flow "
-                        "(self-regulating), no slip or take-up: a valve that holds and then "
-                        "moves, sticky (on a level) or loose (on a flow); give the process "
-                        "type in loops.csv to decide; method: valve events (slips and "
-                        "take-ups)", **common)
                 return verdict(slips.kind, conf if slips.kind != "undecided" else 0.6 * conf,
                                f"{what}: {slips.reason} ({kind} process, {src}); method: "
                                "valve events (slips and take-ups)", **common)
