@@ -6,7 +6,10 @@ import pytest
 matplotlib.use("Agg")
 
 from valvediag import classify_loop, simulate_loop  # noqa: E402
-from valvediag.analysis.reversals import MIN_RESTS, reversal_rests  # noqa: E402
+from valvediag.analysis.reversals import (DURATION_SPREAD, MIN_REST_SHARE,  # noqa: E402
+                                          MIN_REST_SHARE_FIXED, MIN_RESTS,
+                                          MIN_RESTS_FIXED, TRAVEL_SPREAD_SHARE,
+                                          reversal_rests)
 
 H, N = 1.0, 6 * 3600
 
@@ -47,6 +50,35 @@ def test_a_linear_or_sticky_valve_under_the_same_load_leaves_no_rest(valve, vp):
     r = reversal_rests(pv, op, H, sp=sp)
     assert r.excursions >= MIN_RESTS
     assert not r.found and r.rests < MIN_RESTS, r.reason
+
+
+def test_fewer_rests_name_a_dead_band_where_its_travel_is_fixed_and_its_time_is_not():
+    # a load that turns every five minutes turns the PV between the OP's
+    # reversals too: the rests make less than a third of the excursions, but
+    # each came after the same travel of the OP, at whatever speed it moved
+    pv, op, sp = _flow("backlash", {"DB": 3.0}, load=_wandering_load(seed=3, every=300.0,
+                                                                      size=1.0), noise=0.15)
+    r = reversal_rests(pv, op, H, sp=sp)
+    assert MIN_RESTS_FIXED <= r.rests < MIN_REST_SHARE * r.excursions     # the share alone fails
+    assert r.found, r.reason
+    assert r.duration_spread >= DURATION_SPREAD
+    assert r.travel_spread <= TRAVEL_SPREAD_SHARE * r.duration_spread
+    assert r.dead_band == pytest.approx(3.0, rel=0.15)
+    assert "fixed width" in r.reason
+
+
+def test_a_periodic_load_rests_at_a_fixed_time_and_names_no_dead_band():
+    # a clipped load turns the PV at the same OP travel and after the same
+    # time at every cycle: a linear valve behind the process's lag then shows
+    # "rests" enough for the fixed-travel reading, but their durations do not
+    # spread
+    t = np.arange(N) * H
+    load = 2.0 * np.clip(np.sin(2 * np.pi * t / 480.0), -0.5, 0.5) / 0.5
+    pv, op, sp = _flow("linear", {}, load=load, noise=0.15)
+    r = reversal_rests(pv, op, H, sp=sp)
+    assert r.rests >= MIN_RESTS_FIXED and r.rests >= MIN_REST_SHARE_FIXED * r.excursions
+    assert r.duration_spread < DURATION_SPREAD
+    assert not r.found, r.reason
 
 
 def test_a_healthy_flow_under_load_steps_is_no_loose_valve():
