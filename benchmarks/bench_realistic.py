@@ -32,6 +32,7 @@ test; that change redrew loops in every set once more.
 
 Usage: python benchmarks/bench_realistic.py [--loops N] [--set dev|dev2|heldout|all] [--workers W]
        [--classes C1,C2] [--misses] [--evidence FILE] [--valve-position]
+       [--reverse-acting]
 
 ``--valve-position`` gives the scan each loop's valve position as a
 positioner would report it (``SynthLoop.mv``: the simulated position with
@@ -39,6 +40,12 @@ positioner would report it (``SynthLoop.mv``: the simulated position with
 dead responses have none), through the registry's ``mv`` tag. The loops are
 the same as without it. Without the flag the scan reads PV, OP and SP only,
 as the targets are stated.
+
+``--reverse-acting`` runs every loop a second time upside down: PV and set
+point turned about the middle of the span (``100 - x``), the OP the same.
+That is the record of the same loop on a valve that acts the other way (a
+level on its outlet valve, whose controller is reverse-acting), and nothing
+physical tells the two apart; it prints the loops whose verdicts differ.
 
 ``--evidence FILE`` writes one JSON line per loop of the development sets:
 its class, index and seed, truth and verdict, what was simulated (valve,
@@ -50,6 +57,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import datetime as dt
 import json
 import os
@@ -82,7 +90,8 @@ def _frames(loop, with_position=False):
 
 
 def _work(args):
-    klass, i, seed, with_position = args
+    klass, i, seed, with_position, *rest = args
+    upside_down = bool(rest and rest[0])
     from valvediag.io.registry import LoopSpec
     from valvediag.scan import LoopJob, ScanConfig, analyse_loop
     from valvediag.synth.cases import CLASSES, draw_loop
@@ -90,6 +99,8 @@ def _work(args):
     rng = np.random.default_rng([seed, list(CLASSES).index(klass), i])
     loop = draw_loop(klass, rng, name=f"{klass}-{i:02d}")
     known = rng.random() < 0.7
+    if upside_down:
+        loop = dataclasses.replace(loop, pv=100.0 - loop.pv, sp=100.0 - loop.sp)
     position = with_position and loop.mv is not None
     spec = LoopSpec(loop=loop.name, pv_tag="PV", op_tag="OP", sp_tag="SP",
                     mv_tag="MV" if position else None,
@@ -153,6 +164,10 @@ def main():
     ap.add_argument("--valve-position", action="store_true",
                     help="give the scan each loop's recorded valve position (the registry's "
                          "mv tag) as a positioner reports it")
+    ap.add_argument("--reverse-acting", action="store_true",
+                    help="also run every loop upside down (PV and SP turned about the middle of "
+                         "the span, as on a valve that acts the other way) and print the loops "
+                         "whose verdicts differ")
     args = ap.parse_args()
     classes = [c for c in args.classes.split(",") if c] or list(CLASSES)
     unknown = sorted(set(classes) - set(CLASSES))
@@ -172,6 +187,15 @@ def main():
         with_mv = ", valve position recorded" if args.valve_position else ""
         _report(rows, f"{name} set (seed {SETS[name]}{with_mv}), "
                       f"{time.perf_counter() - t0:.0f} s wall", details)
+        if args.reverse_acting:
+            with ProcessPoolExecutor(max_workers=max(1, args.workers)) as ex:
+                down = list(ex.map(_work, [(*j, True) for j in jobs], chunksize=2))
+            moved = [(r, d) for r, d in zip(rows, down) if r["verdict"] != d["verdict"]]
+            print(f"upside down (a reverse-acting loop): {len(moved)} of {len(rows)} verdicts "
+                  "differ")
+            for r, d in moved if details else ():
+                print(f"   {r['klass']:26s} #{r['index']:<3d} {r['verdict']} -> {d['verdict']}: "
+                      f"{d['reason'][:120]}")
         if out is not None and details:
             from valvediag.plain import to_plain
 

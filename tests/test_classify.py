@@ -322,3 +322,33 @@ def test_a_compressed_level_under_a_triangular_load_is_not_called_sticky(seed):
     assert d.bi <= THRESHOLDS["robust"][0]             # the corners read sharp
     assert d.evidence["ramp_curvature"] > 0.011         # but the ramps are curved
     assert d.verdict == "linear-oscillation", d.reason
+
+
+@pytest.mark.parametrize("klass, seed, index", [
+    ("level-linear-tuning", 11, 1),      # a ringing level, 6 cycles in 1 h
+    ("level-stiction-cycle", 12, 2),     # a sticky level, 8 cycles in 2 h
+    ("level-backlash-cycle", 10, 1),
+    ("flow-stiction-cycle", 10, 0),
+    ("flow-healthy", 1, 0),              # a flow under a slow load: 4 swings in a day
+])
+def test_a_reverse_acting_loop_gets_the_verdict_of_its_mirror_image(klass, seed, index):
+    # a level on an outlet valve falls as the OP rises, and its controller
+    # acts the other way round: the record is the mirror image of the loop
+    # on an inlet valve, the OP the same. Nothing physical tells them apart,
+    # and the verdict must not either. The mean cycle, cut from valley to
+    # valley only, read the two apart (its aligned apex sharp, the other
+    # smeared by the cycles' jitter): a ringing level was called sticky
+    # upside down, a sticky level of unknown type screened as a flow, and a
+    # flow's slow swings counted as regular one way up only
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    n = int(24 * 3600 / loop.sample_time)
+    pv, op, sp = loop.pv[-n:], loop.op[-n:], loop.sp[-n:]
+    up = classify_loop(pv, op, sp, sample_time=loop.sample_time)
+    down = classify_loop(100.0 - pv, op, 100.0 - sp, sample_time=loop.sample_time)
+    assert down.verdict == up.verdict, (up.reason, down.reason)
+    for key in ("periodic_fraction", "pv_distortion", "ramp_curvature", "ramp_share"):
+        assert down.evidence.get(key, 0.0) == pytest.approx(up.evidence.get(key, 0.0),
+                                                            rel=1e-9), key
+    assert down.evidence.get("process_screen") == up.evidence.get("process_screen")

@@ -350,6 +350,24 @@ class LoopDiagnosis:
         return ax
 
 
+def _longer_ramp(C):
+    """(curvature, share) of the straight line through the longer half of the
+    mean of the cycles ``C`` (rows), or None: see :func:`integrating_screen`."""
+    if C.shape[0] < 2:
+        return None
+    m = C.mean(axis=0)
+    span = m.max() - m.min()
+    p = int(np.argmax(m))
+    a, b = max(((0, p), (p, m.size - 1)), key=lambda ab: ab[1] - ab[0])
+    L = b - a
+    if L < 8 or span <= 0:
+        return None
+    x = np.arange(a + int(0.2 * L), a + int(np.ceil(0.8 * L)) + 1)
+    coef = np.polyfit(x, m[x], 1)
+    return (float(np.sqrt(np.mean((m[x] - np.polyval(coef, x)) ** 2)) / span),
+            float(abs(coef[0]) * L / span))
+
+
 def integrating_screen(pv_detrended, apex_idx, apex_sign, pv_distortion):
     """Data test for an integrating process, from the shape of the mean cycle.
 
@@ -360,7 +378,10 @@ def integrating_screen(pv_detrended, apex_idx, apex_sign, pv_distortion):
     or, when it is fast, steps and then stays flat.
 
     The test looks at the longer half of the mean cycle (valley to peak or
-    peak to valley) and fits a straight line to its central 60 %:
+    peak to valley) and fits a straight line to its central 60 %; both
+    figures are the means over the mean cycle cut from valley to valley and
+    the one cut from peak to peak, so that a PV and its mirror image (a
+    reverse-acting loop) screen alike:
 
     * ``ramp_curvature``: residual RMS of that line over the cycle's
       peak-to-peak range; below 0.011 the ramp is straight;
@@ -395,21 +416,18 @@ def integrating_screen(pv_detrended, apex_idx, apex_sign, pv_distortion):
     oscillation gives a curvature of about 0.012 on any process, so a linear
     oscillation leaves the process type ``'unknown'``.
     """
-    C = mean_cycles([pv_detrended], apex_idx, apex_sign, 128)[0]
     ev = {"ramp_curvature": np.nan, "ramp_share": np.nan}
-    if C.shape[0] < 2:
+    # the mean cycle cut from valley to valley and from peak to peak: a cut
+    # aligns one apex and smears the other by the cycles' jitter, so one cut
+    # alone reads a PV and its mirror image (a reverse-acting loop) apart
+    # (the peak-to-peak cut turned upside down: its valley is then the apex
+    # between the two halves)
+    sign = np.asarray(apex_sign)
+    fits = [f for f in (_longer_ramp(k * mean_cycles([pv_detrended], apex_idx, k * sign, 128)[0])
+                        for k in (1.0, -1.0)) if f is not None]
+    if not fits:
         return "unknown", ev
-    m = C.mean(axis=0)
-    span = m.max() - m.min()
-    p = int(np.argmax(m))
-    a, b = max(((0, p), (p, m.size - 1)), key=lambda ab: ab[1] - ab[0])
-    L = b - a
-    if L < 8 or span <= 0:
-        return "unknown", ev
-    x = np.arange(a + int(0.2 * L), a + int(np.ceil(0.8 * L)) + 1)
-    coef = np.polyfit(x, m[x], 1)
-    curv = float(np.sqrt(np.mean((m[x] - np.polyval(coef, x)) ** 2)) / span)
-    share = float(abs(coef[0]) * L / span)
+    curv, share = (float(np.mean(v)) for v in zip(*fits))
     ev.update(ramp_curvature=curv, ramp_share=share)
     if curv < RAMP_CURVATURE_MAX and share > RAMP_SHARE_MIN:
         return "integrating", ev

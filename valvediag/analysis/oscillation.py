@@ -480,17 +480,20 @@ def _resample_kernel(s, a, m, phase):
 
 
 def _periodic_fraction(y, apex_idx, apex_sign, nbins=32):
-    """Variance share of the mean cycle (cycles from valley to valley, each
-    resampled to ``nbins`` phase points)."""
-    vl = apex_idx[apex_sign < 0]
-    if vl.size < 3:
-        return 0.0
-    C = resample_cycles([y], apex_idx, apex_sign, nbins)[0]
-    if C.shape[0] < 2:
-        return 0.0
-    mean = C.mean(axis=0)
-    tot = C.var() * C.size
-    res = ((C - mean) ** 2).sum()
+    """Variance share of the mean cycle (each cycle resampled to ``nbins``
+    phase points), the cycles cut from valley to valley and from peak to peak
+    and pooled: one cut alone reads a record and its mirror image (a
+    reverse-acting loop's) apart."""
+    sign = np.asarray(apex_sign)
+    tot = res = 0.0
+    for s in (sign, -sign):
+        if np.count_nonzero(s < 0) < 3:
+            continue
+        C = resample_cycles([y], apex_idx, s, nbins)[0]
+        if C.shape[0] < 2:
+            continue
+        tot += C.var() * C.size
+        res += ((C - C.mean(axis=0)) ** 2).sum()
     return float(max(0.0, 1.0 - res / tot)) if tot > 0 else 0.0
 
 
