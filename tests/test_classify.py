@@ -352,3 +352,26 @@ def test_a_reverse_acting_loop_gets_the_verdict_of_its_mirror_image(klass, seed,
         assert down.evidence.get(key, 0.0) == pytest.approx(up.evidence.get(key, 0.0),
                                                             rel=1e-9), key
     assert down.evidence.get("process_screen") == up.evidence.get("process_screen")
+
+
+@pytest.mark.parametrize("klass, seed, index", [
+    ("level-stiction-cycle", 12, 2),
+    ("flow-backlash-events", 10, 0),     # rests at the OP's reversals
+    ("flow-stiction-events", 10, 5),     # a flow's slips
+    ("level-stiction-events", 11, 1),    # a level's kinks
+])
+def test_the_pvs_unit_does_not_move_the_verdict(klass, seed, index):
+    # a flow in kg/h about 1e5, a level in metres, a pressure in bar: every
+    # test reads the PV against its own noise and swing, none against a
+    # number in PV units
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    n = int(24 * 3600 / loop.sample_time)
+    pv, op, sp = loop.pv[-n:], loop.op[-n:], loop.sp[-n:]
+    kw = dict(sample_time=loop.sample_time, process_type=loop.process_type)
+    d = classify_loop(pv, op, sp, **kw)
+    for a, b in ((0.004, 1e5), (37.0, -400.0)):
+        e = classify_loop(a * pv + b, op, a * sp + b, **kw)
+        assert e.verdict == d.verdict, (a, b, d.reason, e.reason)
+        assert e.amplitude == pytest.approx(a * d.amplitude, rel=1e-6, nan_ok=True)
