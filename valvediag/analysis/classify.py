@@ -59,7 +59,7 @@ import numpy as np
 from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
 from .bumps import SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps
 from .linearity import CycleShape, cycle_shape, mean_cycles
-from .oscillation import Oscillation, detect_oscillation
+from .oscillation import Oscillation, detect_oscillation, turned_cycles
 from .quality import bridge_short_gaps, despike, longest_run, white_noise_std
 from .reversals import reversal_rests
 from .signature import (KIND_SHARE, ValveSignature, cycle_transitions, horch_correlation,
@@ -417,14 +417,10 @@ def integrating_screen(pv_detrended, apex_idx, apex_sign, pv_distortion):
     oscillation leaves the process type ``'unknown'``.
     """
     ev = {"ramp_curvature": np.nan, "ramp_share": np.nan}
-    # the mean cycle cut from valley to valley and from peak to peak: a cut
-    # aligns one apex and smears the other by the cycles' jitter, so one cut
-    # alone reads a PV and its mirror image (a reverse-acting loop) apart
-    # (the peak-to-peak cut turned upside down: its valley is then the apex
-    # between the two halves)
-    sign = np.asarray(apex_sign)
-    fits = [f for f in (_longer_ramp(k * mean_cycles([pv_detrended], apex_idx, k * sign, 128)[0])
-                        for k in (1.0, -1.0)) if f is not None]
+    # the means over both cuts (see turned_cycles)
+    fits = [f for f in (_longer_ramp(mean_cycles([pv_detrended], apex_idx, apex_sign, 128)[0]),
+                        _longer_ramp(turned_cycles(pv_detrended, apex_idx, apex_sign, 128)))
+            if f is not None]
     if not fits:
         return "unknown", ev
     curv, share = (float(np.mean(v)) for v in zip(*fits))

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .oscillation import resample_cycles
+from .oscillation import resample_cycles, turned_cycles
 
 __all__ = ["CycleShape", "mean_cycles", "cycle_shape"]
 
@@ -162,11 +162,8 @@ def cycle_shape(pv, op, apex_idx, apex_sign, nbins: int = NBINS) -> CycleShape:
     mean = C.mean(axis=0)
     F = np.fft.rfft(mean - mean.mean()) / nbins
     H = min(N_HARMONICS, nbins // 2 - 1)
-    # the cycles cut from valley to valley and from peak to peak: the apex
-    # the cut aligns is sharp in the mean cycle, the other smeared by the
-    # cycles' jitter, so one cut alone reads a PV and its mirror image (a
-    # reverse-acting loop) differently
-    Cp = mean_cycles([pv], apex_idx, -np.asarray(apex_sign), nbins)[0]
+    # the harmonic powers of both cuts pooled (see turned_cycles)
+    Cp = turned_cycles(pv, apex_idx, apex_sign, nbins)
     fund = harm = floor = 0.0
     for M in (C, Cp) if Cp.shape[0] >= 2 else (C,):
         k = M.shape[0]

@@ -479,21 +479,48 @@ def _resample_kernel(s, a, m, phase):
     return out
 
 
+def turned_cycles(y, apex_idx, apex_sign, nbins: int) -> np.ndarray:
+    """The cycles of ``y`` cut from peak to peak and turned over, each
+    resampled to ``nbins`` phase points.
+
+    Parameters
+    ----------
+    y : array_like
+        Record [any unit].
+    apex_idx, apex_sign : array_like
+        Its apices: sample indices and +1 (peak) / -1 (valley).
+    nbins : int
+        Phase points per cycle.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n_cycles, nbins)
+        :func:`resample_cycles` of ``-y`` (its valleys are ``y``'s peaks):
+        like the valley-to-valley cycles, each runs from a low apex through
+        a high one and back.
+
+    Notes
+    -----
+    A cut aligns the apex it starts and ends at: that apex stays sharp in
+    the mean cycle, and the other is smeared by the cycles' jitter. A figure
+    read from the valley-to-valley cut alone reads a record and its mirror
+    image (a reverse-acting loop's, whose PV falls as its OP rises) apart;
+    read from both cuts, it does not.
+    """
+    return resample_cycles([-np.asarray(y, dtype=float)], apex_idx, -np.asarray(apex_sign),
+                           nbins)[0]
+
+
 def _periodic_fraction(y, apex_idx, apex_sign, nbins=32):
     """Variance share of the mean cycle (each cycle resampled to ``nbins``
     phase points), the cycles cut from valley to valley and from peak to peak
-    and pooled: one cut alone reads a record and its mirror image (a
-    reverse-acting loop's) apart."""
-    sign = np.asarray(apex_sign)
+    pooled (:func:`turned_cycles`)."""
     tot = res = 0.0
-    for s in (sign, -sign):
-        if np.count_nonzero(s < 0) < 3:
-            continue
-        C = resample_cycles([y], apex_idx, s, nbins)[0]
-        if C.shape[0] < 2:
-            continue
-        tot += C.var() * C.size
-        res += ((C - C.mean(axis=0)) ** 2).sum()
+    for C in (resample_cycles([y], apex_idx, apex_sign, nbins)[0],
+              turned_cycles(y, apex_idx, apex_sign, nbins)):
+        if C.shape[0] >= 2:
+            tot += C.var() * C.size
+            res += ((C - C.mean(axis=0)) ** 2).sum()
     return float(max(0.0, 1.0 - res / tot)) if tot > 0 else 0.0
 
 
