@@ -375,3 +375,26 @@ def test_the_pvs_unit_does_not_move_the_verdict(klass, seed, index):
         e = classify_loop(a * pv + b, op, a * sp + b, **kw)
         assert e.verdict == d.verdict, (a, b, d.reason, e.reason)
         assert e.amplitude == pytest.approx(a * d.amplitude, rel=1e-6, nan_ok=True)
+
+
+@pytest.mark.parametrize("klass, seed, index", [
+    ("flow-stiction-cycle", 10, 1),      # the valve signature's fit
+    ("flow-stiction-cycle", 11, 1),
+    ("flow-linear-disturbance", 11, 3),
+    ("level-stiction-cycle", 12, 2),     # the Backlash Index
+])
+def test_the_ops_unit_does_not_move_the_verdict(klass, seed, index):
+    # an OP stored as a fraction of the valve's travel, or as the 4-20 mA of
+    # its signal: the valve signature searches stick bands over the OP's own
+    # range and noise, not from a number of OP percent (only a dead response,
+    # an OP travel of 10 % of its span, reads the OP in percent)
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    n = int(24 * 3600 / loop.sample_time)
+    pv, op, sp = loop.pv[-n:], loop.op[-n:], loop.sp[-n:]
+    kw = dict(sample_time=loop.sample_time, process_type=loop.process_type)
+    d = classify_loop(pv, op, sp, **kw)
+    for a, b in ((0.01, 0.0), (0.16, 4.0)):
+        e = classify_loop(pv, a * op + b, sp, **kw)
+        assert e.verdict == d.verdict, (a, b, d.reason, e.reason)

@@ -95,6 +95,9 @@ _JS = (0.0, 0.25, 0.5, 0.75, 1.0)
 #: geometric grid over the whole range: 5 % apart from 40 % to 100 % (see
 #: :func:`valve_signature`, Notes).
 _SWING_SHARES = np.geomspace(0.4, 1.0, 19)
+#: Least stick band searched, as a share of the OP's 1-99 % range, where the
+#: OP shows too little noise to set it (a stored OP drawn back onto the grid).
+_LEAST_BAND = 0.02
 _DELAYS = (0, 1, 2, 4, 8, 16)
 _BLOCKS = 24
 
@@ -366,8 +369,11 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     delays the response like a lag does, and the comparison must not credit
     the valve with the process's lag).
 
-    The stick band ``S`` is searched on a geometric grid over the OP's range
-    and, beside it, at 40-100 % of the OP's 1-99 % range 5 % apart. In a
+    The stick band ``S`` is searched on a geometric grid from half the OP's
+    noise band (or :data:`_LEAST_BAND` of its range, where the OP shows less
+    noise) to 1.2 times its range and, beside it, at 40-100 % of the OP's
+    1-99 % range 5 % apart: in the OP's own unit, so that an OP stored as a
+    fraction of the valve's travel or in mA is read as one in percent. In a
     sticky valve's limit cycle the slip ends each OP swing (the PV jumps and
     the controller turns back), so the band is most of the swing; a record
     that keeps every second controller sample misses the OP's turning
@@ -486,7 +492,8 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     # a) a coarse valve grid over every (dead time, lag) within the budget:
     # the best dynamics of a dead band and of a valve with a slip jump
     swing = op_range * _SWING_SHARES
-    Sc = np.union1d(np.geomspace(max(0.1, 0.5 * band), max(1.2 * op_range, 0.2), 12), swing)
+    s_lo = max(0.5 * band, _LEAST_BAND * op_range)
+    Sc = np.union1d(np.geomspace(s_lo, 1.2 * op_range, 12), swing)
     Jc = np.r_[0.0 * Sc, 0.5 * Sc, Sc]
     _, tr, _, _, _ = fit_valves(np.r_[Sc, Sc, Sc], Jc, pairs)
     near = set()
@@ -498,8 +505,7 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
             near |= {(d0, t) for t in (t0, 0.7 * t0, 1.4 * t0) if d0 * h + t <= budget}
     sub = sorted(near)
     # b) the fine valve grid at those dynamics
-    S_grid = np.union1d(np.geomspace(max(0.1, 0.5 * band), max(1.2 * op_range, 0.2), 16),
-                        swing)
+    S_grid = np.union1d(np.geomspace(s_lo, 1.2 * op_range, 16), swing)
     SS, JJ = np.meshgrid(S_grid, _JS, indexing="ij")
     SS, JJ = np.r_[0.0, SS.ravel()], np.r_[0.0, (SS * JJ).ravel()]      # row 0: linear
     cand = _Candidates(SS, JJ, sub, *fit_valves(SS, JJ, sub))
