@@ -609,3 +609,29 @@ def test_a_limit_cycle_that_stops_is_found_in_the_part_that_holds_it():
     assert (ep.start - T0).total_seconds() <= block
     assert (ep.end - T0).total_seconds() == pytest.approx(2400, abs=block)
     assert r.period_s == pytest.approx(150, rel=0.05)
+
+
+@pytest.mark.parametrize("klass, seed, index, trim, process_type", [
+    ("flow-stiction-events", 11, 6, 0.0, "unknown"),
+    ("flow-stiction-events", 16, 7, 0.0, "unknown"),
+    ("level-stiction-events", 11, 1, 0.05, "integrating"),
+])
+def test_valve_events_found_on_a_whole_record_are_not_split_into_cycles(klass, seed, index,
+                                                                        trim, process_type):
+    # sticky valves of the realistic benchmark's study seeds whose slips (a
+    # flow's jumps, a level's kinks) were found on the whole record: parts of
+    # it that cycled, each read on its own (a linear valve's cycle; 90 s of a
+    # level cycling too fast for its shape), outvoted them
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    k0 = int(trim * loop.pv.size)
+    pv, op, sp = loop.pv[k0:], loop.op[k0:], loop.sp[k0:]
+    t = np.arange(pv.size) * loop.sample_time
+    spec = LoopSpec("X1", "X1.PV", "X1.OP", sp_tag="X1.SP", process_type=process_type,
+                    span=100.0)
+    r = analyse_loop(job_for(spec, pv.size, loop.sample_time),
+                     {"pv": frame(t, pv), "op": frame(t, op), "sp": frame(t, sp)},
+                     ScanConfig(window_hours=24))
+    assert r.verdict == "stiction", r.reason
+    assert "valve events" in r.reason and len(r.episodes) == 1

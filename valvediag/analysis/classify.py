@@ -286,7 +286,10 @@ class LoopDiagnosis:
     regularity : float
         Thornhill regularity of the cycle durations.
     evidence : dict
-        Every figure behind the verdict (JSON-serialisable).
+        Every figure behind the verdict (JSON-serialisable). ``from_events``
+        is true where the verdict was read from the valve's events over the
+        whole stretch (a flow's slips or take-ups, a level's kinks, its
+        set-point steps, rests at the OP's reversals) rather than from a cycle.
     oscillation, backlash, shape : optional
         The intermediate results, for plots.
     travel : valvediag.analysis.travel.ValveTravel or None
@@ -624,7 +627,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                     ev["kinks_followed"] = dict(slips.as_dict(), ratio=round(ratio, 2))
                     continue
             if slips.found and slips.consistent >= min_events:
-                ev.update(stick_slip=slips.as_dict(), process_screen=kind)
+                ev.update(stick_slip=slips.as_dict(), process_screen=kind, from_events=True)
                 src = "loop registry" if process_type != "unknown" else "assumed"
                 what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
                         }.get(slips.kind, "valve events")
@@ -642,6 +645,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         ev.setdefault("setpoint_bumps", bumps.as_dict())
         if not bumps.found:
             return None
+        ev["from_events"] = True
         kinks = read.get("integrating")
         method = "method: set-point steps as bump tests"
         if kinks is not None and kinks.slips > 0:
@@ -664,6 +668,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         ev["reversal_rests"] = rests.as_dict()
         if not rests.found:
             return None
+        ev["from_events"] = True
         src = "self-regulating process, loop registry" if process_type != "unknown" else \
             "process type not known, read as self-regulating"
         return verdict("backlash", (0.5 + 0.4 * min(1.0, rests.rests / 10.0))

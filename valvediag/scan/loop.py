@@ -258,9 +258,10 @@ def _segment_episodes(aligned, a, b, process_type, config, compressed=False
     whole = _is_episode(d, config.min_cycles)
     if not (whole or _is_intermittent(d, config.min_cycles)):
         return d, []
-    if d.verdict == "backlash" and (d.evidence.get("reversal_rests") or {}).get("found"):
-        # a dead band read at the OP's reversals stands on the whole segment:
-        # its parts hold no limit cycle to find episodes in
+    if d.evidence.get("from_events"):
+        # a valve read from its events (slips, kinks, rests at the OP's
+        # reversals, set-point steps) stands on the whole segment: a part that
+        # cycles briefly holds fewer of them, and says less
         return d, [(a, b, d)]
     h = aligned.sample_time
     runs = _block_activity(aligned.pv[a:b], h, d.period, d.amplitude)
