@@ -258,10 +258,9 @@ def _segment_episodes(aligned, a, b, process_type, config, compressed=False
     whole = _is_episode(d, config.min_cycles)
     if not (whole or _is_intermittent(d, config.min_cycles)):
         return d, []
-    if d.evidence.get("from_events"):
-        # a valve read from its events (slips, kinks, rests at the OP's
-        # reversals, set-point steps) stands on the whole segment: a part that
-        # cycles briefly holds fewer of them, and says less
+    if d.verdict == "backlash" and (d.evidence.get("reversal_rests") or {}).get("found"):
+        # a dead band read at the OP's reversals stands on the whole segment:
+        # its parts hold no limit cycle to find episodes in
         return d, [(a, b, d)]
     h = aligned.sample_time
     runs = _block_activity(aligned.pv[a:b], h, d.period, d.amplitude)
@@ -275,6 +274,12 @@ def _segment_episodes(aligned, a, b, process_type, config, compressed=False
         sub = _classify(aligned, a + ra, a + rb, process_type, config, compressed)
         if _is_episode(sub, config.min_cycles):
             out.append((a + ra, a + rb, sub))
+    if d.evidence.get("from_events") and not any(e[2].verdict in VALVE_FAULTS for e in out):
+        # a valve read from its events over the whole segment (slips, kinks,
+        # set-point steps) stands, unless a part that cycles reads a valve
+        # fault in its cycle: a part that reads none holds fewer of the events
+        # and does not clear the valve
+        return d, [(a, b, d)]
     return d, (out or ([(a, b, d)] if whole else []))
 
 
