@@ -398,3 +398,29 @@ def test_the_ops_unit_does_not_move_the_verdict(klass, seed, index):
     for a, b in ((0.01, 0.0), (0.16, 4.0)):
         e = classify_loop(pv, a * op + b, sp, **kw)
         assert e.verdict == d.verdict, (a, b, d.reason, e.reason)
+
+
+@pytest.mark.parametrize("klass, seed, index", [
+    ("level-healthy", 11, 1),            # set-point steps read as bump tests
+    ("flow-stiction-cycle", 10, 7),      # the valve signature's fit of a cycle
+])
+@pytest.mark.parametrize("skew", [-1, 1])
+def test_an_op_stored_a_sample_off_the_pv_gets_the_same_verdict(klass, seed, index, skew):
+    # the PV and OP tags stored at different scans: the controller's answer
+    # to the PV's noise shows the skew, and the OP is drawn back onto the PV's
+    # time stamps. Before, the healthy level read every set-point step as a
+    # valve that moved against its OP (the loop's sense read the wrong way),
+    # and the sticky flow's slips, one sample late against the OP, read as a
+    # linear valve behind a dead time
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    kw = dict(sample_time=loop.sample_time, process_type=loop.process_type)
+    pv, op, sp = loop.pv, loop.op, loop.sp
+    d = classify_loop(pv, op, sp, **kw)
+    assert "op_skew_samples" not in d.evidence
+    cut = slice(skew, None) if skew > 0 else slice(None, skew)
+    rest = slice(None, -skew) if skew > 0 else slice(-skew, None)
+    e = classify_loop(pv[cut], op[rest], sp[cut], **kw)
+    assert e.verdict == d.verdict, (d.reason, e.reason)
+    assert e.evidence["op_skew_samples"] == skew

@@ -448,6 +448,23 @@ def test_loop_sense_reads_which_way_the_op_moves_the_pv():
     assert loop_sense(flat, flat) == 0.0
 
 
+@pytest.mark.parametrize("skew", [-2, -1, 1, 2])
+@pytest.mark.parametrize("sense", [1.0, -1.0])
+def test_loop_sense_holds_when_the_ops_time_stamps_are_skewed(skew, sense):
+    # the two tags stored at different scans: at one sample of skew the moves
+    # correlate the other way at lag zero, and every sense read there turned
+    from valvediag.analysis.signature import controller_lag, loop_sense
+
+    pv, op, _ = _level_staircase(stick=False, sense=sense)
+    lag, _ = controller_lag(pv, op)
+    assert lag == 0
+    # the OP's answer stored ``skew`` samples after the PV's move it answers
+    pv, op = (pv[skew:], op[:-skew]) if skew > 0 else (pv[:skew], op[-skew:])
+    lag, r = controller_lag(pv, op)
+    assert lag == skew, r
+    assert loop_sense(pv, op) == sense
+
+
 def _recorded_flow_loop(valve, valve_params=None, load=None, seed=1, h=5.0):
     """A PI flow loop run at half the record's sample time and recorded every
     second sample, with measurement noise fed back (tau 11.9 s, lag 1.4 s,

@@ -62,8 +62,9 @@ from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import Oscillation, detect_oscillation, turned_cycles
 from .quality import bridge_short_gaps, despike, longest_run, white_noise_std
 from .reversals import reversal_rests
-from .signature import (KIND_SHARE, ValveSignature, cycle_transitions, horch_correlation,
-                        stick_slip_events, valve_signature)
+from .signature import (KIND_SHARE, SENSE_SKEW, ValveSignature, controller_lag,
+                        cycle_transitions, horch_correlation, stick_slip_events,
+                        valve_signature)
 from .travel import ValveTravel, valve_travel
 from .trend import pv_op_trend
 from .turn_timing import SLIP_SHARE, turn_timing
@@ -443,6 +444,27 @@ def _margin(x, limit, scale):
     return float(1.0 - np.exp(-d / scale))
 
 
+#: A skew of the OP's time stamps is removed where the controller's answer
+#: at that lag is this many times as strong as at lag zero (white noise's
+#: second differences correlate by -2/3 with their neighbours' and 1/6 with
+#: the next: a skew of one sample makes it 1.5 times as strong, of two 6
+#: times; an OP smeared by its storage, about as strong).
+SKEW_CLEAR = 1.25
+
+
+def _deskew_op(pv: np.ndarray, op: np.ndarray) -> tuple[np.ndarray, int]:
+    """The OP drawn back onto the PV's time stamps where the controller's
+    answer to the PV's noise comes a sample or two late or early
+    (:func:`~valvediag.analysis.signature.controller_lag`); the samples
+    shifted off the record's end are missing. Returns the OP and the skew
+    removed [samples]."""
+    lag, r = controller_lag(pv, op)
+    if not lag or abs(r[lag + SENSE_SKEW]) < SKEW_CLEAR * abs(r[SENSE_SKEW]):
+        return op, 0
+    gap = np.full(abs(lag), np.nan)
+    return (np.r_[op[lag:], gap] if lag > 0 else np.r_[gap, op[:lag]]), lag
+
+
 def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "unknown",
                   method: str = "robust", min_cycles: float = 3.0,
                   pv_compressed: bool = False, mv=None) -> LoopDiagnosis:
@@ -492,7 +514,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     are masked (:func:`~valvediag.analysis.quality.despike`) and runs of up
     to three missing samples bridged by a straight line
     (:func:`~valvediag.analysis.quality.bridge_short_gaps`); longer gaps are
-    not bridged: the longest gap-free stretch is analysed. A process lag comparable to
+    not bridged: the longest gap-free stretch is analysed. An OP whose time
+    stamps are skewed against the PV's by a sample or two (two tags stored at
+    different scans) is shifted back onto the PV's, where the controller's
+    answer to the PV's noise shows the skew clearly (``op_skew_samples`` in
+    the evidence); the valve's readers all assume that the controller
+    answers the PV within its sample. A process lag comparable to
     the period rounds a stiction apex and biases the BI towards backlash.
 
     References
@@ -547,6 +574,9 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     pv, pv_bridged = bridge_short_gaps(pv)
     op, op_bridged = bridge_short_gaps(op)
     ev.update(spikes_masked=pv_spikes + op_spikes, samples_bridged=pv_bridged + op_bridged)
+    op, skew = _deskew_op(pv, op)
+    if skew:
+        ev["op_skew_samples"] = skew
     good = np.isfinite(pv) & np.isfinite(op)
     a, b = longest_run(good)
     ev["usable_samples"] = b - a

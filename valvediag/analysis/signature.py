@@ -62,7 +62,8 @@ from .quality import most_active_window, stored_points, white_noise_std
 from .trend import pv_op_trend
 
 __all__ = ["ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_events",
-           "horch_correlation", "cycle_transitions", "loop_sense", "SIGNATURE_LIMITS"]
+           "horch_correlation", "cycle_transitions", "loop_sense", "controller_lag",
+           "SIGNATURE_LIMITS", "SENSE_SKEW"]
 
 #: Decision limits of :func:`valve_signature` (calibrated on the development
 #: set of ``benchmarks/bench_realistic.py``, seed 1).
@@ -90,6 +91,9 @@ SIGNATURE_LIMITS = {
 MAX_SAMPLES = 3000
 #: OP noise multiples that are not a reversal of the actuator.
 NOISE_REVERSAL = 6.0
+#: Samples by which the OP's time stamps may be skewed against the PV's, each
+#: way, where :func:`loop_sense` seeks the controller's answer to the noise.
+SENSE_SKEW = 2
 _JS = (0.0, 0.25, 0.5, 0.75, 1.0)
 #: Stick bands searched as shares of the OP's 1-99 % range, beside the
 #: geometric grid over the whole range: 5 % apart from 40 % to 100 % (see
@@ -1113,21 +1117,77 @@ def loop_sense(pv, op) -> float:
     measures, measurement noise included, and within a sample the valve has
     not yet answered. So the sample-to-sample moves of PV and OP correlate
     negatively when the PV rises with the OP (a working loop's proportional
-    action opposes the process's sense). The sense is read only when that
-    correlation exceeds three standard errors. It fails where the PV is
-    filtered before the controller or stored so coarsely that the valve's
-    answer falls within the same sample, and for a controller without
-    proportional action.
+    action opposes the process's sense).
+
+    The OP's time stamps may be skewed against the PV's by a sample or two
+    (a historian that stores the two tags at different scans, an export
+    drawn onto a common grid). The moves of white noise correlate by -1/2
+    with their neighbours', so at one sample of skew the correlation at lag
+    zero has the *opposite* sign, half as strong: read there alone, every
+    level's answer to its set-point steps read as a valve that moved against
+    its OP. The correlation is therefore read at every lag up to
+    :data:`SENSE_SKEW` samples either way, and the strongest one gives the
+    sense, where it exceeds three standard errors.
+
+    It fails where the PV is filtered before the controller or stored so
+    coarsely that the valve's answer falls within the same sample, for a
+    controller without proportional action, and where the OP's own noise (a
+    noisy cascade set point) moves the PV more than the PV's noise moves the
+    OP: the process's answer, of the other sign, is then the strongest.
     """
-    dp = np.diff(np.asarray(pv, dtype=float))
-    du = np.diff(np.asarray(op, dtype=float))
+    lag, r = controller_lag(pv, op)
+    return float(np.sign(r[lag + SENSE_SKEW])) if lag is not None else 0.0
+
+
+def controller_lag(pv, op) -> tuple[int | None, np.ndarray]:
+    """The lag at which the OP answers the PV's noise, and the correlations read.
+
+    Parameters
+    ----------
+    pv, op : array_like, shape (n,)
+        One stretch of a loop in automatic [PV unit, OP unit]; non-finite
+        samples count as no move.
+
+    Returns
+    -------
+    lag : int or None
+        Samples by which the OP's answer comes after the PV's move it
+        answers, from ``-SENSE_SKEW`` to ``SENSE_SKEW`` (0 where the two
+        tags' time stamps agree); None where no correlation exceeds three
+        standard errors.
+    r : numpy.ndarray, shape (2 SENSE_SKEW + 1,)
+        Minus the correlation of the PV's move at ``k`` with the OP's at
+        ``k + lag``, for each lag: positive where the PV rises with the OP.
+
+    Notes
+    -----
+    See :func:`loop_sense`: the strongest correlation is the controller's
+    answer, and the moves of white noise correlate by -1/2 with their
+    neighbours', so a skew of one sample halves the correlation at lag
+    zero and turns its sign.
+    """
+    r = np.zeros(2 * SENSE_SKEW + 1)
+    # second differences: the answer to the noise, without the slow swings
+    # of a cycle, whose moves correlate at every lag
+    dp = np.diff(np.asarray(pv, dtype=float), 2)
+    du = np.diff(np.asarray(op, dtype=float), 2)
     ok = np.isfinite(dp) & np.isfinite(du)
-    dp, du = dp[ok] - dp[ok].mean(), du[ok] - du[ok].mean()
+    if not ok.any():
+        return None, r
+    # a missing move counts as none, so that the lags stay aligned
+    dp = np.where(ok, dp - dp[ok].mean(), 0.0)
+    du = np.where(ok, du - du[ok].mean(), 0.0)
     den = math.sqrt(float(dp @ dp) * float(du @ du))
     if not den > 0:
-        return 0.0
-    r = -float(dp @ du) / den
-    return float(np.sign(r)) if abs(r) > 3.0 / math.sqrt(dp.size) else 0.0
+        return None, r
+    n = dp.size
+    for i, lag in enumerate(range(-SENSE_SKEW, SENSE_SKEW + 1)):
+        # the PV's move at k against the OP's at k + lag
+        r[i] = -float(dp[max(0, -lag):n - max(0, lag)] @ du[max(0, lag):n - max(0, -lag)]) / den
+    i = int(np.argmax(np.abs(r)))
+    if not abs(r[i]) > 3.0 / math.sqrt(int(ok.sum())):
+        return None, r
+    return i - SENSE_SKEW, r
 
 
 @lru_cache(maxsize=16)
