@@ -60,7 +60,7 @@ from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
 from .bumps import SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import Oscillation, detect_oscillation, turned_cycles
-from .quality import bridge_short_gaps, despike, longest_run, white_noise_std
+from .quality import bridge_short_gaps, despike, longest_run, stored_points, white_noise_std
 from .reversals import reversal_rests
 from .signature import (KIND_SHARE, SENSE_SKEW, ValveSignature, controller_lag,
                         cycle_transitions, horch_correlation, stick_slip_events,
@@ -450,19 +450,28 @@ def _margin(x, limit, scale):
 #: the next: a skew of one sample makes it 1.5 times as strong, of two 6
 #: times; an OP smeared by its storage, about as strong).
 SKEW_CLEAR = 1.25
+#: ... and only where the OP keeps at least this share of its samples (an OP
+#: stored by exception and drawn back by straight lines shows no answer to
+#: the noise in each sample, and its stored points set the lag).
+SKEW_STORED = 0.7
 
 
-def _deskew_op(pv: np.ndarray, op: np.ndarray) -> tuple[np.ndarray, int]:
-    """The OP drawn back onto the PV's time stamps where the controller's
-    answer to the PV's noise comes a sample or two late or early
-    (:func:`~valvediag.analysis.signature.controller_lag`); the samples
-    shifted off the record's end are missing. Returns the OP and the skew
-    removed [samples]."""
+def _deskew_op(pv: np.ndarray, op: np.ndarray, mv: np.ndarray | None):
+    """The OP (and the valve position with it) drawn back onto the PV's time
+    stamps where the controller's answer to the PV's noise comes a sample or
+    two late or early (:func:`~valvediag.analysis.signature.controller_lag`);
+    the samples shifted off the record's end are missing. Returns the OP, the
+    position and the skew removed [samples]."""
+    if stored_points(op).size < SKEW_STORED * np.count_nonzero(np.isfinite(op)):
+        return op, mv, 0
     lag, r = controller_lag(pv, op)
     if not lag or abs(r[lag + SENSE_SKEW]) < SKEW_CLEAR * abs(r[SENSE_SKEW]):
-        return op, 0
+        return op, mv, 0
     gap = np.full(abs(lag), np.nan)
-    return (np.r_[op[lag:], gap] if lag > 0 else np.r_[gap, op[:lag]]), lag
+
+    def shift(x):
+        return np.r_[x[lag:], gap] if lag > 0 else np.r_[gap, x[:lag]]
+    return shift(op), (None if mv is None else shift(mv)), lag
 
 
 def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "unknown",
@@ -518,8 +527,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     stamps are skewed against the PV's by a sample or two (two tags stored at
     different scans) is shifted back onto the PV's, where the controller's
     answer to the PV's noise shows the skew clearly (``op_skew_samples`` in
-    the evidence); the valve's readers all assume that the controller
-    answers the PV within its sample. A process lag comparable to
+    the evidence; the valve position moves with the OP, whose controller or
+    positioner stores it): the valve's readers all assume that the controller
+    answers the PV within its sample. An OP stored by exception on more than
+    30 % of its samples is left as it is. A process lag comparable to
     the period rounds a stiction apex and biases the BI towards backlash.
 
     References
@@ -574,7 +585,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     pv, pv_bridged = bridge_short_gaps(pv)
     op, op_bridged = bridge_short_gaps(op)
     ev.update(spikes_masked=pv_spikes + op_spikes, samples_bridged=pv_bridged + op_bridged)
-    op, skew = _deskew_op(pv, op)
+    op, mv, skew = _deskew_op(pv, op, mv)
     if skew:
         ev["op_skew_samples"] = skew
     good = np.isfinite(pv) & np.isfinite(op)
