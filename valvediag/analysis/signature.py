@@ -1126,8 +1126,8 @@ def loop_sense(pv, op) -> float:
     zero has the *opposite* sign, half as strong: read there alone, every
     level's answer to its set-point steps read as a valve that moved against
     its OP. The correlation is therefore read at every lag up to
-    :data:`SENSE_SKEW` samples either way, and the strongest one gives the
-    sense, where it exceeds three standard errors.
+    :data:`SENSE_SKEW` samples either way (:func:`controller_lag`), and the
+    strongest one gives the sense, where it exceeds three standard errors.
 
     It fails where the PV is filtered before the controller or stored so
     coarsely that the valve's answer falls within the same sample, for a
@@ -1156,15 +1156,21 @@ def controller_lag(pv, op) -> tuple[int | None, np.ndarray]:
         tags' time stamps agree); None where no correlation exceeds three
         standard errors.
     r : numpy.ndarray, shape (2 SENSE_SKEW + 1,)
-        Minus the correlation of the PV's move at ``k`` with the OP's at
-        ``k + lag``, for each lag: positive where the PV rises with the OP.
+        Minus the correlation of the PV's second difference at ``k`` with the
+        OP's at ``k + lag``, for each lag: positive where the PV rises with
+        the OP.
 
     Notes
     -----
-    See :func:`loop_sense`: the strongest correlation is the controller's
-    answer, and the moves of white noise correlate by -1/2 with their
-    neighbours', so a skew of one sample halves the correlation at lag
-    zero and turns its sign.
+    The strongest correlation is the controller's answer to the PV's noise
+    (:func:`loop_sense`). It is read on second differences: a limit cycle's
+    moves correlate by 0.3-0.9 at every lag and blur the answer's lag, its
+    second differences hardly. The second differences of white noise
+    correlate by -2/3 with their neighbours' and by 1/6 with the next, so
+    at one sample of skew lag zero reads -2/3 of the answer, at two 1/6.
+    It fails as :func:`loop_sense` does, and on an OP stored by exception
+    (drawn back by straight lines between stored points, whose second
+    differences are nonzero only there): the stored points set the lag.
     """
     r = np.zeros(2 * SENSE_SKEW + 1)
     # second differences: the answer to the noise, without the slow swings
