@@ -324,6 +324,16 @@ def test_a_compressed_level_under_a_triangular_load_is_not_called_sticky(seed):
     assert d.verdict == "linear-oscillation", d.reason
 
 
+def _study_record(klass, seed, index):
+    """A loop of the realistic benchmark, drawn from its own stream as
+    ``loop_set`` draws it, and the last 24 h of its PV, OP and SP."""
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    n = int(24 * 3600 / loop.sample_time)
+    return loop, loop.pv[-n:], loop.op[-n:], loop.sp[-n:]
+
+
 @pytest.mark.parametrize("klass, seed, index", [
     ("level-linear-tuning", 11, 1),      # a ringing level, 6 cycles in 1 h
     ("level-stiction-cycle", 12, 2),     # a sticky level, 8 cycles in 2 h
@@ -340,11 +350,7 @@ def test_a_reverse_acting_loop_gets_the_verdict_of_its_mirror_image(klass, seed,
     # smeared by the cycles' jitter): a ringing level was called sticky
     # upside down, a sticky level of unknown type screened as a flow, and a
     # flow's slow swings counted as regular one way up only
-    from valvediag.synth.cases import CLASSES, draw_loop
-
-    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
-    n = int(24 * 3600 / loop.sample_time)
-    pv, op, sp = loop.pv[-n:], loop.op[-n:], loop.sp[-n:]
+    loop, pv, op, sp = _study_record(klass, seed, index)
     up = classify_loop(pv, op, sp, sample_time=loop.sample_time)
     down = classify_loop(100.0 - pv, op, 100.0 - sp, sample_time=loop.sample_time)
     assert down.verdict == up.verdict, (up.reason, down.reason)
@@ -364,11 +370,7 @@ def test_the_pvs_unit_does_not_move_the_verdict(klass, seed, index):
     # a flow in kg/h about 1e5, a level in metres, a pressure in bar: every
     # test reads the PV against its own noise and swing, none against a
     # number in PV units
-    from valvediag.synth.cases import CLASSES, draw_loop
-
-    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
-    n = int(24 * 3600 / loop.sample_time)
-    pv, op, sp = loop.pv[-n:], loop.op[-n:], loop.sp[-n:]
+    loop, pv, op, sp = _study_record(klass, seed, index)
     kw = dict(sample_time=loop.sample_time, process_type=loop.process_type)
     d = classify_loop(pv, op, sp, **kw)
     for a, b in ((0.004, 1e5), (37.0, -400.0)):
@@ -388,11 +390,7 @@ def test_the_ops_unit_does_not_move_the_verdict(klass, seed, index):
     # its signal: the valve signature searches stick bands over the OP's own
     # range and noise, not from a number of OP percent (only a dead response,
     # an OP travel of 10 % of its span, reads the OP in percent)
-    from valvediag.synth.cases import CLASSES, draw_loop
-
-    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
-    n = int(24 * 3600 / loop.sample_time)
-    pv, op, sp = loop.pv[-n:], loop.op[-n:], loop.sp[-n:]
+    loop, pv, op, sp = _study_record(klass, seed, index)
     kw = dict(sample_time=loop.sample_time, process_type=loop.process_type)
     d = classify_loop(pv, op, sp, **kw)
     for a, b in ((0.01, 0.0), (0.16, 4.0)):
@@ -412,11 +410,8 @@ def test_an_op_stored_a_sample_off_the_pv_gets_the_same_verdict(klass, seed, ind
     # valve that moved against its OP (the loop's sense read the wrong way),
     # and the sticky flow's slips, one sample late against the OP, read as a
     # linear valve behind a dead time
-    from valvediag.synth.cases import CLASSES, draw_loop
-
-    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    loop, pv, op, sp = _study_record(klass, seed, index)
     kw = dict(sample_time=loop.sample_time, process_type=loop.process_type)
-    pv, op, sp = loop.pv, loop.op, loop.sp
     d = classify_loop(pv, op, sp, **kw)
     assert "op_skew_samples" not in d.evidence
     cut = slice(skew, None) if skew > 0 else slice(None, skew)
