@@ -337,7 +337,8 @@ def test_load_steps_between_slips_do_not_hide_them():
     assert e.events == e.consistent, e.reason
 
 
-def _level_staircase(seed=3, stick=True, sense=1.0, n=6000, wander=False):
+def _level_staircase(seed=3, stick=True, sense=1.0, n=6000, wander=False, tau=200.0,
+                     noise=0.02, every=600.0):
     """A level under proportional control whose inflow valve sticks: the
     outflow wanders (40 +- 2 % over 25 minutes), the OP (40 + 2 x the error,
     plus the measurement's noise) creeps as the level drifts, and the valve
@@ -346,17 +347,18 @@ def _level_staircase(seed=3, stick=True, sense=1.0, n=6000, wander=False):
     slope: the valve position the slope implies is a staircase under a
     smooth OP. With ``stick=False`` the valve follows the OP (the same loop,
     healthy). With ``wander=True`` the outflow wanders at random instead
-    (a straight line between random points every 10 minutes), so the level
-    does not cycle."""
+    (a straight line between random points every ``every`` seconds), so the
+    level does not cycle. ``tau``: the level's integrating time [s];
+    ``noise``: the measurement's standard deviation [%]."""
     rng = np.random.default_rng(seed)
-    h, tau, kc, sp = 1.0, 200.0, 2.0, 50.0
+    h, kc, sp = 1.0, 2.0, 50.0
     pv, valve = sp, 40.0
     out_pv, out_op = np.empty(n), np.empty(n)
-    knots = 40.0 + np.cumsum(rng.normal(0, 1.0, n // 600 + 2))
-    walk = np.interp(np.arange(n), np.arange(knots.size) * 600.0, knots)
+    knots = 40.0 + np.cumsum(rng.normal(0, 1.0, int(n // every) + 2))
+    walk = np.interp(np.arange(n), np.arange(knots.size) * every, knots)
     for k in range(n):
         load = walk[k] if wander else 40.0 + 2.0 * np.sin(2 * np.pi * k * h / 1500.0)
-        meas = pv + rng.normal(0, 0.02)
+        meas = pv + rng.normal(0, noise)
         op = 40.0 + sense * kc * (sp - meas)
         if not stick or abs(op - valve) > 1.0:
             valve = op
@@ -388,6 +390,29 @@ def test_a_levels_staircase_of_slips_is_read_from_its_kinks():
     pv, op, sp = _level_staircase(sense=-1.0)
     e = stick_slip_events(pv, op, 1.0, process="integrating", sp=sp)
     assert e.found and e.kind == "stiction", e.reason
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_slow_levels_slips_far_apart_are_read_over_wide_windows(seed):
+    # a level that integrates slowly (2000 s) under a load that wanders over
+    # hours: the valve holds for about 20 minutes between slips, and each
+    # slip steps the level's slope by 1/2000 % a second, about 4 standard
+    # errors over 128 samples either side and over 20 over 512 (before
+    # 2026-11-28 the kinks were read over at most 128: no kink, no verdict)
+    pv, op, sp = _level_staircase(seed=seed, wander=True, n=40_000, tau=2000.0, noise=0.05,
+                                  every=3600.0)
+    e = stick_slip_events(pv, op, 1.0, process="integrating", sp=sp)
+    assert e.found and e.kind == "stiction" and e.step > 128, e.reason
+    assert e.consistent >= 10, e.reason
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="integrating")
+    assert d.verdict == "stiction", d.reason
+    # the same loop on a valve that follows the OP: no kink
+    pv, op, sp = _level_staircase(seed=seed, wander=True, n=40_000, tau=2000.0, noise=0.05,
+                                  every=3600.0, stick=False)
+    e = stick_slip_events(pv, op, 1.0, process="integrating", sp=sp)
+    assert not e.found and e.consistent < MIN_SLIPS, e.reason
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="integrating")
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
 
 
 def test_a_levels_kinks_that_the_op_did_not_drive_are_not_slips():

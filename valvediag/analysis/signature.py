@@ -806,18 +806,33 @@ KIND_SHARE = 2.0 / 3.0
 #: over the same step (and six noise standard deviations).
 MOVE_SPREAD = 4.0
 #: Half-windows over which a level's kinks are read [samples].
-KINK_WINDOWS = (8, 16, 32, 64, 128)
+KINK_WINDOWS = (8, 16, 32, 64, 128, 256, 512, 1024)
+#: Half-windows wider than this [samples] see the slope steps of a slow level
+#: whose valve holds for many minutes, but fold a closed loop's smooth turns
+#: into kinks: there a kink is read only where the level did not bend against
+#: it (:data:`KINK_AGAINST`), and the OP's creep before it is judged as over
+#: this window's quarter (:data:`KINK_TRAVEL_Z`).
+KINK_WIDE = 128
 #: A level's slope step counts as a kink beyond this many standard errors.
 KINK_Z = 6.0
 #: The level's slope may change by at most this share of a kink's step, the
 #: way the kink goes, over the half-window before it (the valve held).
 KINK_HELD = 0.5
+#: Over a half-window wider than :data:`KINK_WIDE`, the stretch since the
+#: last kink may bend against the kink's step by at most this share of it: a
+#: level that curves by more than the step, either way, was moved at the
+#: kink's own scale (by a load, or a valve following the OP).
+KINK_AGAINST = 1.0
 #: At half the window, somewhere within a quarter window of the kink, the
 #: slope must step the same way by at least this share of it (a step, not a
 #: bend that only a wide window folds into one).
 KINK_ABRUPT = 0.7
 #: Standard errors of the OP's mean by which it must travel over the
-#: half-window before a kink for the kink to say anything of the valve.
+#: half-window before a kink for the kink to say anything of the valve (over
+#: a half-window wider than :data:`KINK_WIDE`, the standard error of a mean
+#: over its quarter: the mean of many more samples would count a creep of a
+#: fraction of the OP's noise, too small to break a valve loose, and a load's
+#: step after it would read as a slip as often as not).
 KINK_TRAVEL_Z = 4.0
 #: Steps over which a self-regulating PV's jumps are measured [samples].
 SLIP_STEPS = (2, 8, 32, 128)
@@ -911,9 +926,15 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     stay within :data:`KINK_HELD` of the step. The
     controller answers a level's slip only through the error that slowly
     grows from it, so no take-up can be read: every valve event is a slip.
-    Half-windows of at most 128 samples keep the fitted stretch within the
-    valve's rests; wider ones fold a closed loop's answer to a load's turn
-    into kinks.
+    Half-windows run from 8 to 1,024 samples: a slow level whose valve holds
+    for many minutes steps its slope by little against the noise of a
+    narrow one. Wider than :data:`KINK_WIDE` (128) samples, a window folds a
+    closed loop's smooth turns into kinks and the mean of many samples reads
+    a creep of the OP too small to break a valve loose; there the stretch
+    since the last kink must not bend against the kink by more than
+    :data:`KINK_AGAINST` of its step either (a level that curves that much
+    was moved at the kink's own scale), and the OP's creep is judged as over
+    a quarter of 128 samples.
 
     A fault needs :data:`MIN_SLIPS` valve events that make
     :data:`MIN_SLIP_SHARE` of the jumps (or kinks) judged, or, in a
@@ -924,8 +945,9 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None
     had crept its way).
 
     It fails where a valve's slips are smaller than six noise standard
-    deviations of the PV (or, on a level, of the slope step read over 128
-    samples), where a slow process spreads a slip over more than 128
+    deviations of the PV (or, on a level, of the slope step read over the
+    stretch of 1,024 samples either side, or between slips where they come
+    closer), where a slow process spreads a slip over more than 128
     samples, where the OP moves too slowly for a take-up to make a jump (a
     loose valve behind slow integral action shows no event), and where the
     set point is missing and moves. A load step that moves a flow towards its
@@ -1270,7 +1292,7 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
     half_kink, half_norm = _kink_kernels(w // 2)[:2]
     half = _window_corr(y, half_kink) / half_norm             # slope steps at half the window
     q = max(2, w // 4)
-    travel_min = KINK_TRAVEL_Z * op_noise * math.sqrt(2.0 / q)
+    travel_min = KINK_TRAVEL_Z * op_noise * math.sqrt(2.0 / min(q, KINK_WIDE // 4))
     judged = np.zeros(idx.size, bool)
     ok = np.zeros(idx.size, bool)
     travel = np.zeros(idx.size)
@@ -1297,6 +1319,8 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol):
             judged[i] = False
             continue
         held = held and bent[0] * np.sign(d) <= KINK_HELD * abs(d)
+        if w > KINK_WIDE:
+            held = held and bent[0] * np.sign(d) >= -KINK_AGAINST * abs(d)
         near = half[max(0, k - w // 4):k + w // 4 + 1] * np.sign(d)
         near = near[np.isfinite(near)]
         abrupt = near.size > 0 and float(near.max()) >= KINK_ABRUPT * abs(d)
