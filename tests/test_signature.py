@@ -396,9 +396,10 @@ def test_a_levels_staircase_of_slips_is_read_from_its_kinks():
 def test_a_slow_levels_slips_far_apart_are_read_over_wide_windows(seed):
     # a level that integrates slowly (2000 s) under a load that wanders over
     # hours: the valve holds for about 20 minutes between slips, and each
-    # slip steps the level's slope by 1/2000 % a second, about 4 standard
-    # errors over 128 samples either side and over 20 over 512 (before
-    # 2026-11-28 the kinks were read over at most 128: no kink, no verdict)
+    # slip of 1 % steps the level's slope by 1/2000 % a second: 0.7 standard
+    # errors of the hinge read over half-windows of 128 samples, 6 over 512
+    # and 17 over 1,024, where a kink needs 6 (before 2026-11-28 the kinks
+    # were read over at most 128: no kink, no verdict)
     pv, op, sp = _level_staircase(seed=seed, wander=True, n=40_000, tau=2000.0, noise=0.05,
                                   every=3600.0)
     e = stick_slip_events(pv, op, 1.0, process="integrating", sp=sp)

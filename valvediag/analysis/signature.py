@@ -811,7 +811,7 @@ KINK_WINDOWS = (8, 16, 32, 64, 128, 256, 512, 1024)
 #: whose valve holds for many minutes, but fold a closed loop's smooth turns
 #: into kinks: there a kink is read only where the level did not bend against
 #: it (:data:`KINK_AGAINST`), and the OP's creep before it is judged as over
-#: this window's quarter (:data:`KINK_TRAVEL_Z`).
+#: a quarter of this many samples (:data:`KINK_TRAVEL_Z`).
 KINK_WIDE = 128
 #: A level's slope step counts as a kink beyond this many standard errors.
 KINK_Z = 6.0
