@@ -529,8 +529,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     answer to the PV's noise shows the skew clearly (``op_skew_samples`` in
     the evidence; the valve position moves with the OP, whose controller or
     positioner stores it): the valve's readers all assume that the controller
-    answers the PV within its sample. An OP stored by exception on more than
-    30 % of its samples is left as it is. A process lag comparable to
+    answers the PV within its sample. An OP that keeps fewer than 70 % of
+    its samples (stored by exception) is left as it is. A process lag comparable to
     the period rounds a stiction apex and biases the BI towards backlash.
 
     References
