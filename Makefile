@@ -27,11 +27,19 @@ $(STAMP): pyproject.toml requirements.lock
 
 install: $(STAMP)  ## create .venv and install valvediag with its test tools, from requirements.lock
 
-test: $(STAMP)  ## run the test suite (the locked versions)
-	$(PY) -m pytest -q
+# The unit tests run on TEST_WORKERS processes, each with one BLAS thread (two
+# processes that each spread their linear algebra over every core fight for them);
+# the system tests (servers, ports, killed processes) then run one at a time.
+TEST_WORKERS ?= 2
+UNIT_TESTS := OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 \
+    $(PY) -m pytest -q -m "not system" -n $(TEST_WORKERS)
+
+test: $(STAMP)  ## run the test suite (the locked versions): the unit tests in parallel, then the system tests
+	$(UNIT_TESTS)
+	$(PY) -m pytest -q -m system
 
 test-fast: $(STAMP)  ## the unit tests only (not marked system: no Prefect server, Dask, browser, wheel, killed process)
-	$(PY) -m pytest -q -m "not system" -n 2
+	$(UNIT_TESTS)
 
 # uv resolves the lock (fast, with hashes of every file of each version); pip installs
 # it, so a fresh machine needs nothing beyond Python to set up.
