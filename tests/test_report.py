@@ -168,6 +168,11 @@ def test_plain_words_for_a_planner(loops):
     lin = " ".join(explain(linear))
     assert "sine wave" in lin and "not this valve" in lin
     assert explain(quiet)[0].startswith("The loop does not oscillate")
+    assert "loops.csv" not in " ".join(explain(quiet))
+    # a quiet loop of unknown type was not read for a level's slips: say how to have it read
+    unknown = dataclasses.replace(quiet, evidence={**(quiet.evidence or {}),
+                                                   "process_type_source": "unknown"})
+    assert "name it integrating in loops.csv" in " ".join(explain(unknown))
     rep = LoopHistory("LIC1", status="repeat", first_reported=T0, open_runs=4)
     assert "first reported on 2026-01-01; 4 runs" in " ".join(explain(stiction, rep))
 
