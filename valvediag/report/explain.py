@@ -292,7 +292,8 @@ def explain(r, history=None) -> list[str]:
     how = _how(r)
     if how:
         out.append(how)
-    if r.verdict == "no-oscillation" and (r.evidence or {}).get("process_type_source") == "unknown":
+    source = (r.evidence or {}).get("process_type_source")
+    if r.verdict == "no-oscillation" and source == "unknown":
         # a quiet record of unknown type is read only as a self-regulating
         # loop's (classify_loop): a level's kinks are read only when named
         out.append("The loop list gives no process type for it, so it was read as a "
