@@ -292,8 +292,9 @@ def explain(r, history=None) -> list[str]:
     how = _how(r)
     if how:
         out.append(how)
-    source = (r.evidence or {}).get("process_type_source")
-    if r.verdict == "no-oscillation" and source == "unknown":
+    ev = r.evidence or {}
+    type_unknown = ev.get("process_type_source") == "unknown"
+    if r.verdict == "no-oscillation" and type_unknown:
         # a quiet record of unknown type is read only as a self-regulating
         # loop's (classify_loop): a level's kinks are read only when named
         out.append("The loop list gives no process type for it, so it was read as a "
@@ -307,14 +308,12 @@ def explain(r, history=None) -> list[str]:
         sure = confidence_word(r.confidence)
         notes = []
         q = r.quality or {}
-        ev = r.evidence or {}
         if q.get("compressed"):
             notes.append("the historian compresses this measurement, which can distort its "
                          "shape")
         if _finite(ev.get("agreement")) and ev["agreement"] < 0.999:
             notes.append("parts of the day disagree on the verdict")
-        if ev.get("process_type_source") in ("unknown",) and r.verdict in ("stiction", "backlash",
-                                                                           "undecided"):
+        if type_unknown and r.verdict in ("stiction", "backlash", "undecided"):
             notes.append("the process type is not in the loop list, so it was assumed to be "
                          "integrating")
         s = f"Confidence {r.confidence:.2f} ({sure})"
