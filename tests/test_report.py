@@ -173,6 +173,11 @@ def test_plain_words_for_a_planner(loops):
     unknown = dataclasses.replace(quiet, evidence={**(quiet.evidence or {}),
                                                    "process_type_source": "unknown"})
     assert "name it integrating in loops.csv" in " ".join(explain(unknown))
+    # a valve verdict on a loop of unknown type says the loop was assumed integrating
+    assert "assumed to be integrating" not in " ".join(explain(stiction))
+    sticky = dataclasses.replace(stiction, evidence={**(stiction.evidence or {}),
+                                                     "process_type_source": "unknown"})
+    assert "assumed to be integrating" in " ".join(explain(sticky))
     rep = LoopHistory("LIC1", status="repeat", first_reported=T0, open_runs=4)
     assert "first reported on 2026-01-01; 4 runs" in " ".join(explain(stiction, rep))
 
