@@ -112,6 +112,10 @@ def test_a_healthy_flow_of_unknown_type_is_not_read_as_a_level(seed):
     d = classify_loop(run.pv, run.op, run.sp, sample_time=h, process_type="unknown")
     assert d.verdict == "no-oscillation", d.reason
     assert "integrating" not in (d.evidence.get("stick_slip") or {}).get("process", "")
+    # the verdict says how to have a level's kinks read, and only where the type was unknown
+    assert "registry names it integrating" in d.reason
+    known = classify_loop(run.pv, run.op, run.sp, sample_time=h, process_type="self-regulating")
+    assert known.verdict == "no-oscillation" and "registry names it" not in known.reason
 
 
 def test_noise_and_random_walk_are_no_oscillation():

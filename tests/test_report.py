@@ -168,11 +168,6 @@ def test_plain_words_for_a_planner(loops):
     lin = " ".join(explain(linear))
     assert "sine wave" in lin and "not this valve" in lin
     assert explain(quiet)[0].startswith("The loop does not oscillate")
-    assert "loops.csv" not in " ".join(explain(quiet))
-    # a quiet loop of unknown type was not read for a level's slips: say how to have it read
-    unknown = dataclasses.replace(quiet, evidence={**(quiet.evidence or {}),
-                                                   "process_type_source": "unknown"})
-    assert "name it integrating in loops.csv" in " ".join(explain(unknown))
     # a valve verdict on a loop of unknown type says the loop was assumed integrating
     assert "assumed to be integrating" not in " ".join(explain(stiction))
     sticky = dataclasses.replace(stiction, evidence={**(stiction.evidence or {}),

@@ -726,6 +726,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         if travel is not None and travel.verdict == "linear":
             # a valve that follows the OP makes no slips
             return verdict(v, conf, f"{reason}; {travel.reason}", **common)
+        if v == "no-oscillation" and process_type == "unknown":
+            # valve_events read the record as self-regulating only: say how
+            # to have a level's kinks read
+            reason += ("; the process type is not in the loop registry, so the record was read "
+                       "as a self-regulating loop's (a level's kinks are read only where the "
+                       "registry names it integrating)")
         return (valve_events() or setpoint_steps() or rests_at_reversals()
                 or verdict(v, conf, reason, **common))
 

@@ -294,13 +294,6 @@ def explain(r, history=None) -> list[str]:
         out.append(how)
     ev = r.evidence or {}
     type_unknown = ev.get("process_type_source") == "unknown"
-    if r.verdict == "no-oscillation" and type_unknown:
-        # a quiet record of unknown type is read only as a self-regulating
-        # loop's (classify_loop): a level's kinks are read only when named
-        out.append("The loop list gives no process type for it, so it was read as a "
-                   "self-regulating loop (a flow, a pressure). If it is a level, name it "
-                   "integrating in loops.csv: a sticky level valve that makes no cycle shows "
-                   "only in the kinks of the level, and those are read only then.")
     size = size_text(getattr(r, "size", None))
     if size and r.verdict in ("stiction", "backlash"):
         out.append(f"Size, from a loop model fitted to the data: {size}.")
