@@ -8,7 +8,8 @@ matplotlib.use("Agg")
 from valvediag import classify_loop, simulate_loop  # noqa: E402
 from valvediag.analysis.reversals import (DURATION_SPREAD, MIN_REST_SHARE,  # noqa: E402
                                           MIN_REST_SHARE_FIXED, MIN_RESTS,
-                                          MIN_RESTS_FIXED, TRAVEL_SPREAD_SHARE,
+                                          MIN_RESTS_FIXED, MIN_TURNS_FIXED,
+                                          TRAVEL_SPREAD_SHARE, TURN_TRAVEL_SPREAD,
                                           reversal_rests)
 
 H, N = 1.0, 6 * 3600
@@ -67,6 +68,33 @@ def test_fewer_rests_name_a_dead_band_where_its_travel_is_fixed_and_its_time_is_
     assert "fixed width" in r.reason
 
 
+@pytest.mark.parametrize("seed", [3, 4])
+def test_the_turns_name_a_dead_band_where_the_load_moves_the_pv_during_the_rests(seed):
+    # a load that turns every 200 s by twice the usual size moves the PV while
+    # the valve rests, so the PV's gain on the OP is not nought there and
+    # the rests alone name nothing; but the PV still turns back once the OP
+    # has crossed the band, at whatever speed it came back
+    load = _wandering_load(seed=seed, every=200.0, size=2.0)
+    pv, op, sp = _flow("backlash", {"DB": 3.0}, load=load, noise=0.15)
+    r = reversal_rests(pv, op, H, sp=sp)
+    assert r.found and r.by_turns, r.reason
+    assert not (r.rests >= MIN_RESTS and r.rests >= MIN_REST_SHARE * r.excursions)
+    assert r.excursions >= MIN_TURNS_FIXED
+    assert r.turn_travel_spread <= TURN_TRAVEL_SPREAD
+    assert r.turn_duration_spread >= DURATION_SPREAD
+    assert r.dead_band == pytest.approx(3.0, rel=0.15)
+    assert "fixed time" in r.reason
+    assert r.start.size == r.turn.size == r.travel.size == r.excursions
+    ax = r.plot()
+    assert "fixed OP travel" in ax.get_title()
+    # a linear valve under the same load: the PV turns a response after the
+    # OP, at a travel that grows with the OP's speed
+    pv, op, sp = _flow("linear", {}, load=load, noise=0.15)
+    q = reversal_rests(pv, op, H, sp=sp)
+    assert q.excursions >= MIN_TURNS_FIXED
+    assert not q.found and q.turn_travel_spread > TURN_TRAVEL_SPREAD, q.reason
+
+
 def test_a_periodic_load_rests_at_a_fixed_time_and_names_no_dead_band():
     # a clipped load turns the PV at the same OP travel and after the same
     # time at every cycle: a linear valve behind the process's lag then shows
@@ -78,7 +106,9 @@ def test_a_periodic_load_rests_at_a_fixed_time_and_names_no_dead_band():
     r = reversal_rests(pv, op, H, sp=sp)
     assert r.rests >= MIN_RESTS_FIXED and r.rests >= MIN_REST_SHARE_FIXED * r.excursions
     assert r.duration_spread < DURATION_SPREAD
-    assert not r.found, r.reason
+    # its legs are all alike: the turns at a fixed travel say nothing either
+    assert r.excursions >= MIN_TURNS_FIXED and r.leg_spread < DURATION_SPREAD
+    assert not r.found and not r.by_turns, r.reason
 
 
 def test_a_healthy_flow_under_load_steps_is_no_loose_valve():
@@ -194,3 +224,19 @@ def test_a_loose_flow_valve_under_a_ringing_load_is_read_by_its_rests_too():
     r = _scan(loop.pv, loop.op, loop.sp, loop.sample_time)
     assert r.verdict == "backlash", r.reason
     assert "rests at the OP's reversals" in r.reason
+
+
+def test_a_loose_flow_valve_whose_events_are_undecided_is_named_by_its_turns():
+    # a loose flow valve of the realistic benchmark's study seeds (12, index
+    # 1): its valve events read 3 slips and 4 take-ups, undecided, but the PV
+    # turns at a fixed travel of the OP after its reversals, as a dead band's
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    klass = "flow-backlash-events"
+    loop = draw_loop(klass, np.random.default_rng([12, list(CLASSES).index(klass), 1]))
+    d = classify_loop(loop.pv, loop.op, loop.sp, sample_time=loop.sample_time,
+                      process_type="self-regulating")
+    assert d.verdict == "backlash", d.reason
+    assert d.evidence["stick_slip"]["kind"] == "undecided"
+    assert d.evidence["reversal_rests"]["found"]
+    assert "take-ups" in d.reason and "valve events" in d.reason

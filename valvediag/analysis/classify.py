@@ -669,6 +669,14 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                     continue
             if slips.found and slips.consistent >= min_events:
                 ev.update(stick_slip=slips.as_dict(), process_screen=kind, from_events=True)
+                if slips.kind == "undecided" and kind == "self-regulating":
+                    # as many take-ups as slips: where the PV turns at a fixed
+                    # OP travel after its reversals, the band is a loose valve's
+                    loose = rests_at_reversals(
+                        f"; its events read {slips.slips} slips and {slips.takeups} take-ups, "
+                        "which alone leave sticky and loose undecided")
+                    if loose is not None:
+                        return loose
                 src = "loop registry" if process_type != "unknown" else "assumed"
                 what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
                         }.get(slips.kind, "valve events")
@@ -699,9 +707,11 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        f"{bumps.reason}: a sticky valve, or a loose one inside its dead band "
                        f"(integrating process, loop registry); {method}", **common)
 
-    def rests_at_reversals():
+    def rests_at_reversals(also: str = ""):
         """A flow's valve that rests in a dead band at the OP's reversals, or None
-        (read where no limit cycle, or no valve model of the cycle, names a fault)."""
+        (read where no limit cycle, or no valve model of the cycle, names a fault).
+
+        ``also``: what else was read, said after the rests."""
         if process_type == "integrating":
             # a level runs on after the OP turns, whatever its valve does
             return None
@@ -712,10 +722,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         ev["from_events"] = True
         src = "self-regulating process, loop registry" if process_type != "unknown" else \
             "process type not known, read as self-regulating"
-        return verdict("backlash", (0.5 + 0.4 * min(1.0, rests.rests / 10.0))
+        count = rests.excursions if rests.by_turns else rests.rests
+        return verdict("backlash", (0.5 + 0.4 * min(1.0, count / 10.0))
                        * (1.0 if process_type != "unknown" else 0.8),
-                       f"a dead band at the OP's reversals: {rests.reason} ({src}); method: "
-                       "the valve's rests at the OP's reversals", **common)
+                       f"a dead band at the OP's reversals: {rests.reason} ({src}){also}; "
+                       "method: the valve's rests at the OP's reversals"
+                       + (" and valve events" if also else ""), **common)
 
     def slips_or(v, conf, reason):
         """No limit cycle to judge: a sticky valve may still show itself by its slips,

@@ -70,6 +70,16 @@ DURATION_SPREAD = 0.2
 #: ... while their OP travels spread by at most this share of it: the valve
 #: took up a band of fixed width, whatever the OP's speed.
 TRAVEL_SPREAD_SHARE = 0.5
+#: Or: at least this many excursions in all ...
+MIN_TURNS_FIXED = 8
+#: ... whose OP travels from the reversal to the PV's turn spread by at most
+#: this much (robust standard deviation of their logarithm: about 20 %) and
+#: by at most ``TRAVEL_SPREAD_SHARE`` of their durations' spread (at least
+#: ``DURATION_SPREAD``), while the OP's whole legs spread by at least this
+#: many times their travels' spread (and at least ``DURATION_SPREAD``): the
+#: PV turned after a fixed travel of an OP that moved at any speed and as
+#: far as it liked, which no process delay and no periodic load does.
+TURN_TRAVEL_SPREAD, LEG_SPREAD_RATIO = 0.2, 2.0
 #: Most legs of the OP read (the first ones of the record).
 MAX_LEGS = 2000
 #: Fewest samples in a fitted stretch.
@@ -85,8 +95,9 @@ class ReversalRests:
     found : bool
         At least :data:`MIN_RESTS` rests, making :data:`MIN_REST_SHARE` of
         the excursions, or :data:`MIN_RESTS_FIXED` making
-        :data:`MIN_REST_SHARE_FIXED` of them at a fixed OP travel (see
-        :func:`reversal_rests`): a valve with a dead band.
+        :data:`MIN_REST_SHARE_FIXED` of them at a fixed OP travel, or
+        :data:`MIN_TURNS_FIXED` excursions whose PV turned at a fixed OP
+        travel (see :func:`reversal_rests`): a valve with a dead band.
     reason : str
         One sentence.
     legs : int
@@ -101,8 +112,9 @@ class ReversalRests:
         which it did.
     dead_band : float
         Median OP travel from the reversal to the PV's turn, over the rests
-        [OP unit]: the dead band, plus what the OP moves within the
-        process's dead time and lag.
+        (over all excursions where only their turns name the band) [OP
+        unit]: the dead band, plus what the OP moves within the process's
+        dead time and lag.
     sense : float
         +1 when the PV rises with the OP, -1 when it falls, 0 when the
         record cannot tell (then nothing is found).
@@ -110,13 +122,21 @@ class ReversalRests:
         Robust standard deviation of the logarithm of the rests' OP travels
         and of their durations [-]; NaN for fewer than
         :data:`MIN_RESTS_FIXED` rests.
+    turn_travel_spread, turn_duration_spread, leg_spread : float
+        The same over all excursions, and of the OP's travel over their
+        whole legs [-]; NaN for fewer than :data:`MIN_TURNS_FIXED`
+        excursions.
+    by_turns : bool
+        Found by the excursions' turns at a fixed OP travel alone (too few
+        rests).
     start, turn : numpy.ndarray
-        Sample of the OP's reversal and of the PV's turn, for each rest.
+        Sample of the OP's reversal and of the PV's turn, for each rest
+        (for each excursion where ``by_turns``).
     travel : numpy.ndarray
-        The OP's travel during each rest [OP unit].
+        The OP's travel during each rest (excursion) [OP unit].
     gain_rest, gain_follow : numpy.ndarray
-        The PV's fitted gain on the OP during and after each rest, in the
-        loop's sense [PV unit / OP unit].
+        The PV's fitted gain on the OP during and after each rest
+        (excursion), in the loop's sense [PV unit / OP unit].
     """
 
     found: bool
@@ -128,6 +148,10 @@ class ReversalRests:
     sense: float = 0.0
     travel_spread: float = math.nan
     duration_spread: float = math.nan
+    turn_travel_spread: float = math.nan
+    turn_duration_spread: float = math.nan
+    leg_spread: float = math.nan
+    by_turns: bool = False
     start: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
     turn: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
     travel: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
@@ -140,12 +164,15 @@ class ReversalRests:
     def as_dict(self) -> dict:
         """The figures as plain types."""
         return {"found": self.found, "legs": self.legs, "excursions": self.excursions,
-                "rests": self.rests,
+                "rests": self.rests, "by_turns": self.by_turns,
                 "dead_band": round(self.dead_band, 3) if math.isfinite(self.dead_band) else None,
                 "sense": self.sense,
                 **{k: round(v, 3) if math.isfinite(v) else None
                    for k, v in (("travel_spread", self.travel_spread),
-                                ("duration_spread", self.duration_spread))}}
+                                ("duration_spread", self.duration_spread),
+                                ("turn_travel_spread", self.turn_travel_spread),
+                                ("turn_duration_spread", self.turn_duration_spread),
+                                ("leg_spread", self.leg_spread))}}
 
     def plot(self, ax=None):
         """PV and OP, with each rest shaded from the OP's reversal to the PV's turn.
@@ -157,13 +184,20 @@ class ReversalRests:
         ax, t = pv_op_trend(ax, self.pv, self.op, self.sample_time, self.reason)
         if t is None:
             return ax
+        what = ("from the OP's reversal to the PV's turn" if self.by_turns else
+                "valve at rest: the OP moved, the PV ran on")
         for k, (a, j) in enumerate(zip(self.start, self.turn)):
-            ax.axvspan(t[a], t[j], color="C3", alpha=0.15, lw=0,
-                       label="valve at rest: the OP moved, the PV ran on" if k == 0 else None)
+            ax.axvspan(t[a], t[j], color="C3", alpha=0.15, lw=0, label=what if k == 0 else None)
         ax.legend(loc="upper left", fontsize=7)
-        ax.set_title(f"{self.rests} rests at {self.excursions} excursions of the PV after the "
-                     f"OP's reversals (dead band about {self.dead_band:.2g})"
-                     if self.rests else "no rest of the valve at the OP's reversals")
+        if self.by_turns:
+            title = (f"the PV turned at a fixed OP travel at {self.excursions} excursions after "
+                     f"the OP's reversals (dead band about {self.dead_band:.2g})")
+        elif self.rests:
+            title = (f"{self.rests} rests at {self.excursions} excursions of the PV after the "
+                     f"OP's reversals (dead band about {self.dead_band:.2g})")
+        else:
+            title = "no rest of the valve at the OP's reversals"
+        ax.set_title(title)
         return ax
 
 
@@ -240,6 +274,21 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
     after the same time at every cycle, and its rests' durations do not
     spread.
 
+    The excursions' turns name it without rests too: where a wandering load
+    moves the PV during the rest, the fitted gain is no longer nought, but
+    the PV still turns back once the OP has crossed the band. Over
+    :data:`MIN_TURNS_FIXED` excursions or more, the OP's travel from the
+    reversal to the PV's turn must spread by at most
+    :data:`TURN_TRAVEL_SPREAD` and by at most :data:`TRAVEL_SPREAD_SHARE` of
+    the durations' spread (at least :data:`DURATION_SPREAD`), and the OP's
+    whole legs by at least :data:`LEG_SPREAD_RATIO` times the travels'
+    spread. A healthy loop's PV turns a process response after the reversal,
+    at a travel that grows with the OP's speed (on the benchmark's healthy
+    flows the travels spread by 23-99 %, the loose valves' mostly by 1-12 %);
+    a periodic load turns at the end of legs that are all alike (the legs
+    spread by about 1 %, where a loose valve's under a wandering load spread
+    by 2.5-26 times their turns' travel).
+
     It assumes a self-regulating process whose PV answers the valve within a
     few smoothing windows, and a load that drifts smoothly over a rest. It
     fails where:
@@ -263,9 +312,11 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
     A load that steps at an OP's reversal moves the PV first and the OP
     with it (a negative gain), and a loop that answers its OP leaves no rest
     (on the realistic benchmark's development and study seeds 1, 2 and
-    10-26, 8 loops per class: none of 1,064 healthy, disturbed or sticky
-    flow and level loops read a fault, and 101 of 152 loose flow valves
-    without a cycle did, 83 by the share of rests alone).
+    10-26, 8 loops per class: none of the 1,824 loops of its twelve other
+    classes, healthy, disturbed, sticky or dead, flows and levels, read a
+    fault, and 116 of 152 loose flow valves without a cycle did: 83 by the
+    share of rests alone, 101 with the rests at a fixed travel, 95 by the
+    turns alone).
 
     References
     ----------
@@ -305,6 +356,7 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
     sp = None if sp is None else np.asarray(sp, dtype=float).ravel()
     legs = excursions = 0
     rows = []
+    turned = []                      # every excursion: duration, travel, the leg's travel
     for a, b in zip(turns[:MAX_LEGS], turns[1:MAX_LEGS + 1]):
         if b - a < 2 * MIN_FIT or (sp is not None and not np.ptp(sp[a:b]) <= 3.0 * pv_noise):
             continue
@@ -326,6 +378,7 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
         g_r, se_r = _gain(pv, ops, a, a + j + 1, pv_noise)
         g_f, se_f = _gain(pv, ops, a + j, k + 1, pv_noise)
         g_r, g_f = sense * g_r, sense * g_f
+        turned.append((a, a + j, travel, abs(ops[b] - ops[a]), g_r, g_f))
         if abs(g_r) <= 2.0 * se_r and g_f >= 3.0 * se_f and abs(g_r) + 2.0 * se_r <= 0.5 * g_f:
             rows.append((a, a + j, travel, g_r, g_f))
     if not legs:
@@ -342,8 +395,21 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
     many = rests >= MIN_RESTS and rests >= MIN_REST_SHARE * excursions
     fixed = (rests >= MIN_RESTS_FIXED and rests >= MIN_REST_SHARE_FIXED * excursions
              and s_dur >= DURATION_SPREAD and s_trav <= TRAVEL_SPREAD_SHARE * s_dur)
-    found = many or fixed
-    if found:
+    t_trav = t_dur = s_leg = math.nan
+    turn_band = math.nan
+    if len(turned) >= MIN_TURNS_FIXED:
+        e_start, e_turn, trav_all, leg, e_gr, e_gf = (np.asarray(c) for c in zip(*turned))
+        dur = (e_turn - e_start).astype(float)
+        ok = (trav_all > 0) & (leg > 0)
+        if ok.sum() >= MIN_TURNS_FIXED:
+            t_trav, t_dur, s_leg = (float(median_abs_deviation(np.log(v[ok]), scale="normal"))
+                                    for v in (trav_all, dur, leg))
+            turn_band = float(np.median(trav_all[ok]))
+    turns_fixed = (t_trav <= TURN_TRAVEL_SPREAD and t_dur >= DURATION_SPREAD
+                   and t_trav <= TRAVEL_SPREAD_SHARE * t_dur
+                   and s_leg >= max(DURATION_SPREAD, LEG_SPREAD_RATIO * t_trav))
+    found = many or fixed or turns_fixed
+    if many or fixed:
         reason = (f"at {rests} of {excursions} excursions of the PV after the OP's reversals "
                   f"the PV ran on with its load while the OP moved about {band:.2g} back, "
                   "answering it not at all, then followed the OP: a valve that rests in a "
@@ -352,13 +418,26 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
             reason += (f" (the OP's travel during the rests spread by {100 * s_trav:.0f} %, "
                        f"their durations by {100 * s_dur:.0f} %: a band of fixed width taken "
                        "up at any speed, not a process delay)")
+    elif found:
+        band = turn_band
+        a_, j_, trav, g_r, g_f = e_start, e_turn, trav_all, e_gr, e_gf
+        reason = (f"at {excursions} excursions of the PV after the OP's reversals the PV turned "
+                  f"back once the OP had moved about {band:.2g} (spread {100 * t_trav:.0f} %), "
+                  f"however long that took (durations spread {100 * t_dur:.0f} %) and however "
+                  f"far the OP went on (its legs spread {100 * s_leg:.0f} %): a valve that takes "
+                  f"up a dead band of about {band:.2g} at every reversal, where a process's "
+                  "delay would turn the PV after a fixed time")
     else:
         reason = (f"{rests} rests of the valve at {excursions} excursions of the PV in "
                   f"{legs} legs of the OP (a fault needs {MIN_RESTS} and a third of the "
                   f"excursions, or {MIN_RESTS_FIXED} and {100 * MIN_REST_SHARE_FIXED:.0f} % "
-                  "at a fixed OP travel)")
+                  f"at a fixed OP travel, or {MIN_TURNS_FIXED} excursions turning at a fixed "
+                  "OP travel)")
     return ReversalRests(found=found, reason=reason, legs=legs, excursions=excursions,
                          rests=rests, dead_band=band, travel_spread=s_trav,
-                         duration_spread=s_dur, start=a_.astype(int), turn=j_.astype(int),
+                         duration_spread=s_dur, turn_travel_spread=t_trav,
+                         turn_duration_spread=t_dur, leg_spread=s_leg,
+                         by_turns=bool(found and not (many or fixed)),
+                         start=np.asarray(a_).astype(int), turn=np.asarray(j_).astype(int),
                          travel=trav.astype(float), gain_rest=g_r.astype(float),
                          gain_follow=g_f.astype(float), **base)

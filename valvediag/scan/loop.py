@@ -485,7 +485,10 @@ def signature_size(evidence: Mapping, fault: str) -> dict:
         found by the valve's rests at the OP's reversals is the OP's median
         travel during the rests (confidence 0.5: 0.85-1.02 of the simulated
         band, median 0.94, on 37 loose flow valves of the realistic
-        benchmark's study seeds).
+        benchmark's study seeds), or, where only the PV's turns at a fixed
+        travel name it, from each reversal to the PV's turn (0.94-1.07,
+        median 1.00, on the 15 loose flow valves of seeds 1, 2 and 10-26 so
+        named; 0.86-1.10, median 0.97, on the 101 named by their rests).
     """
     sig = evidence.get("signature") or {}
     S, J = sig.get("S"), sig.get("J")
@@ -494,8 +497,10 @@ def signature_size(evidence: Mapping, fault: str) -> dict:
         return {"DB": float(rests["dead_band"]), "confidence": 0.5,
                 "model": "the OP's travel while the valve rested at its reversals",
                 "reason": "the median OP travel from a reversal to the PV's turn, over the "
-                          "valve's rests: the dead band and what the OP moves within the "
-                          "process's dead time and lag"}
+                          + ("excursions that turned at a fixed travel" if rests.get("by_turns")
+                             else "valve's rests")
+                          + ": the dead band and what the OP moves within the process's dead "
+                          "time and lag"}
     if sig.get("verdict") not in ("stiction", "backlash", "undecided") or S is None:
         slips = evidence.get("stick_slip") or {}
         bumps = evidence.get("setpoint_bumps") or {}
