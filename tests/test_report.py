@@ -177,6 +177,56 @@ def test_plain_words_for_a_planner(loops):
     assert "first reported on 2026-01-01; 4 runs" in " ".join(explain(stiction, rep))
 
 
+def test_plain_words_for_a_valve_read_from_its_events(loops):
+    # a verdict read from the valve's events stands on no regular swing: the
+    # words say so, say what was seen, and where its size comes from
+    stiction = loops[0]
+    base = {**{k: v for k, v in (stiction.evidence or {}).items()
+               if k not in ("process_screen", "process_type_source")},
+            "regularity": 0.4, "cycles": 2.0}
+    rests = dataclasses.replace(
+        stiction, verdict="backlash",
+        evidence={**base, "from_events": True, "process_type_source": "loops.csv",
+                  "reversal_rests": {"found": True, "rests": 7, "excursions": 20,
+                                     "by_turns": False, "dead_band": 2.1}},
+        size={"DB": 2.1, "confidence": 0.5,
+              "model": "the OP's travel while the valve rested at its reversals"})
+    words = " ".join(explain(rests))
+    assert "swings regularly" not in words and "once every" not in words
+    assert "at 7 of the controller's reversals" in words and "about 2.1 %" in words
+    assert "Size, from the OP's travel while the valve rested at its reversals: dead band" \
+        in words
+    assert "loop model" not in words
+    jumps = dataclasses.replace(
+        stiction, evidence={**base, "from_events": True, "process_screen": "self-regulating",
+                            "process_type_source": "unknown",
+                            "stick_slip": {"found": True, "kind": "stiction", "consistent": 5,
+                                           "slips": 5, "takeups": 0, "op_travel": 0.8}},
+        size={"S": math.nan, "J": math.nan, "confidence": 0.0})
+    words = " ".join(explain(jumps))
+    assert "never settles" not in words and "once every" not in words
+    assert "5 times the controller output crept about 0.8 %" in words
+    assert "jumped in one go" in words
+    # a loop of unknown type read by its events was read as a flow, not a level
+    assert "read as a self-regulating loop's" in words
+    assert "assumed to be integrating" not in words
+    kinks = dataclasses.replace(jumps, evidence={**jumps.evidence,
+                                                 "process_screen": "integrating",
+                                                 "process_type_source": "loops.csv"})
+    words = " ".join(explain(kinks))
+    assert "ran in a straight line" in words and "not in the loop list" not in words
+    # the cycle's own words where there is a cycle
+    assert "once every" in " ".join(explain(stiction))
+    # valve events read beside a regular swing (a loose flow valve under a
+    # ringing load): the swing is sized, the events say how we know
+    ringing = dataclasses.replace(rests, evidence={**rests.evidence, "regularity": 5.0,
+                                                   "cycles": 12.0, "acf_at_period": 0.8,
+                                                   "periodic_fraction": 0.9})
+    words = " ".join(explain(ringing))
+    assert "once every" in words and "beside the loop's swing" in words
+    assert "at 7 of the controller's reversals" in words
+
+
 def test_durations_and_quality_labels():
     assert [duration_text(x) for x in (45, 437, 3000, 9000, 86400)] == \
         ["45 s", "7.3 min", "50 min", "2.5 h", "24 h"]

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 
+from ..analysis.oscillation import ACF_STRONG, PERIODIC_FRACTION_MIN
+
 __all__ = ["explain", "size_text", "duration_text", "confidence_word", "quality_label", "regularity_text",
            "ACTIONS", "SHORT_ACTIONS", "VERDICT_LABELS"]
 
@@ -237,8 +239,85 @@ def _how_shape(r) -> str | None:
     return None
 
 
+def _from_events(r) -> str | None:
+    """What a valve verdict without a limit cycle stands on, or None.
+
+    ``'rests'`` (the valve resting at the OP's reversals), ``'jumps'`` (a
+    flow's slips or take-ups), ``'kinks'`` (a level's slope steps),
+    ``'steps'`` (a level's answer to its set-point steps) or ``'events'``."""
+    ev = r.evidence or {}
+    if not ev.get("from_events") or r.verdict not in ("stiction", "backlash", "undecided"):
+        return None
+    if r.verdict == "backlash" and (ev.get("reversal_rests") or {}).get("found"):
+        return "rests"
+    if (ev.get("stick_slip") or {}).get("found"):
+        return "kinks" if ev.get("process_screen") == "integrating" else "jumps"
+    if (ev.get("setpoint_bumps") or {}).get("found"):
+        return "steps"
+    return "events"
+
+
+def _swings(r) -> bool:
+    """Does the loop swing regularly, as
+    :attr:`valvediag.analysis.oscillation.Oscillation.is_regular` reads it?"""
+    ev = r.evidence or {}
+    reg, cycles = ev.get("regularity"), ev.get("cycles")
+    acf, fold = ev.get("acf_at_period"), ev.get("periodic_fraction")
+    return (_finite(reg) and reg > 1.0 and _finite(cycles) and cycles >= 2
+            and _finite(acf) and acf > ACF_STRONG and _finite(fold)
+            and fold > PERIODIC_FRACTION_MIN)
+
+
+def _how_events(r, kind: str) -> str | None:
+    """How a valve verdict without a limit cycle was read, in plain words."""
+    ev = r.evidence or {}
+    if kind == "rests":
+        rr = ev["reversal_rests"]
+        n = rr.get("excursions") if rr.get("by_turns") else rr.get("rests")
+        band = rr.get("dead_band")
+        far = f" about {band:.2g} %" if _finite(band) else ""
+        return (f"How we know: at {n} of the controller's reversals the measurement ran on, "
+                f"away from its set point, "
+                f"until the output had moved back{far}, and only then followed it: the "
+                f"slack in the valve, taken up each time.")
+    ss = ev.get("stick_slip") or {}
+    n = ss.get("consistent")
+    crept = ss.get("op_travel")
+    crept = f" about {crept:.2g} %" if _finite(crept) else ""
+    if kind == "jumps" and r.verdict == "backlash":
+        return (f"How we know: {n} times the error grew while the controller output "
+                f"crept{crept} and the measurement did not answer; then the measurement came "
+                f"back only as the output moved on: the valve took up its slack.")
+    if kind == "jumps":
+        return (f"How we know: {n} times the controller output crept{crept} while the "
+                f"measurement did not answer, then the measurement jumped in one go: the "
+                f"valve stuck, then slipped.")
+    if kind == "kinks":
+        return (f"How we know: {n} times the level ran in a straight line while the "
+                f"controller output crept{crept}, then its slope changed at once: the valve "
+                f"stood still, then jumped.")
+    if kind == "steps":
+        b = ev.get("setpoint_bumps") or {}
+        return (f"How we know: at {b.get('against')} of the {b.get('steps')} set-point "
+                f"changes the level did not answer the controller's kick as a free valve "
+                f"would: the valve held.")
+    return None
+
+
 def _opening(r) -> str:
     v = r.verdict
+    events = _from_events(r)
+    if events and v in ("stiction", "backlash"):
+        what = ("sticks: it holds its position while the controller pushes, then jumps"
+                if v == "stiction" else
+                "has play (backlash or dead band): each time the controller reverses, the "
+                "valve does not move until the slack in the linkage or positioner is taken "
+                "up")
+        if _swings(r):
+            return (f"The control valve {what}. Its movements show in the record, read one by "
+                    f"one beside the loop's swing.")
+        return (f"The control valve {what}. The loop does not swing regularly, but the "
+                f"valve's movements show in the record and cost control all the same.")
     if v == "stiction":
         return ("The control valve sticks: it holds its position while the controller "
                 "pushes, then jumps. The loop therefore never settles and swings in a "
@@ -286,17 +365,22 @@ def explain(r, history=None) -> list[str]:
     if r.verdict in ("insufficient-data",):
         out.append(f"Why: {r.reason}.")
         return out
+    events = _from_events(r)
     amount = _amount(r)
-    if amount and r.verdict != "no-oscillation":
+    if amount and r.verdict != "no-oscillation" and (not events or _swings(r)):
+        # a record read by its events may hold no regular swing to size
         out.append(amount)
-    how = _how(r)
+    how = (_how_events(r, events) if events else None) or _how(r)
     if how:
         out.append(how)
     ev = r.evidence or {}
     type_unknown = ev.get("process_type_source") == "unknown"
-    size = size_text(getattr(r, "size", None))
+    size_d = getattr(r, "size", None) or {}
+    size = size_text(size_d)
     if size and r.verdict in ("stiction", "backlash"):
-        out.append(f"Size, from a loop model fitted to the data: {size}.")
+        src = "a loop model fitted to the data" if _finite(size_d.get("fit_pct")) else \
+            str(size_d.get("model") or "the data")
+        out.append(f"Size, from {src}: {size}.")
     if r.needs_action:
         sure = confidence_word(r.confidence)
         notes = []
@@ -307,8 +391,19 @@ def explain(r, history=None) -> list[str]:
         if _finite(ev.get("agreement")) and ev["agreement"] < 0.999:
             notes.append("parts of the day disagree on the verdict")
         if type_unknown and r.verdict in ("stiction", "backlash", "undecided"):
-            notes.append("the process type is not in the loop list, so it was assumed to be "
-                         "integrating")
+            # valve events on a loop of unknown type are read as a flow's, a
+            # cycle by the data test of its ramps, else as a level's
+            screen = ev.get("process_screen")
+            if events:
+                kind = "integrating" if screen == "integrating" else "self-regulating"
+                notes.append("the process type is not in the loop list, so the record was "
+                             f"read as a {kind} loop's")
+            elif screen in ("integrating", "self-regulating"):
+                notes.append("the process type is not in the loop list; the shape of the "
+                              f"swing reads as a {screen} process's")
+            else:
+                notes.append("the process type is not in the loop list, so it was assumed "
+                             "to be integrating")
         s = f"Confidence {r.confidence:.2f} ({sure})"
         s += f": {'; '.join(notes)}." if notes else "."
         out.append(s)
