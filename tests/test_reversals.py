@@ -240,3 +240,20 @@ def test_a_loose_flow_valve_whose_events_are_undecided_is_named_by_its_turns():
     assert d.evidence["stick_slip"]["kind"] == "undecided"
     assert d.evidence["reversal_rests"]["found"]
     assert "take-ups" in d.reason and "valve events" in d.reason
+
+
+def test_a_loose_flow_valve_named_by_its_turns_is_sized_from_them():
+    # a loose flow valve of the realistic benchmark's study seeds (12, index
+    # 3) that read no-oscillation before the turns were read: its rests are
+    # too few, but the PV turned at a fixed OP travel at most of its 66
+    # excursions
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    klass = "flow-backlash-events"
+    loop = draw_loop(klass, np.random.default_rng([12, list(CLASSES).index(klass), 3]))
+    r = _scan(loop.pv, loop.op, loop.sp, loop.sample_time)
+    assert r.verdict == "backlash", r.reason
+    rests = r.evidence["reversal_rests"]
+    assert rests["by_turns"] and rests["turn_travel_spread"] <= TURN_TRAVEL_SPREAD
+    assert r.size["DB"] == pytest.approx(loop.params["DB"], rel=0.15)
+    assert "turned at a fixed travel" in r.size["reason"]
