@@ -197,6 +197,10 @@ def test_plain_words_for_a_valve_read_from_its_events(loops):
     assert "Size, from the OP's travel while the valve rested at its reversals: dead band" \
         in words
     assert "loop model" not in words
+    # and the figure does not call the stretch it shades an oscillation
+    svg = loop_figure(rests, "ev")
+    assert "the stretch whose valve events were read shaded" in svg
+    assert "oscillating stretches shaded" in loop_figure(stiction, "cy")
     jumps = dataclasses.replace(
         stiction, evidence={**base, "from_events": True, "process_screen": "self-regulating",
                             "process_type_source": "unknown",

@@ -12,7 +12,7 @@ import math
 from ..analysis.oscillation import ACF_STRONG, PERIODIC_FRACTION_MIN
 
 __all__ = ["explain", "size_text", "duration_text", "confidence_word", "quality_label", "regularity_text",
-           "ACTIONS", "SHORT_ACTIONS", "VERDICT_LABELS"]
+           "read_from_events", "swings_regularly", "ACTIONS", "SHORT_ACTIONS", "VERDICT_LABELS"]
 
 #: What to do about each verdict that needs action.
 ACTIONS = {
@@ -239,12 +239,22 @@ def _how_shape(r) -> str | None:
     return None
 
 
-def _from_events(r) -> str | None:
-    """What a valve verdict without a limit cycle stands on, or None.
+def read_from_events(r) -> str | None:
+    """What a valve verdict read from the valve's events stands on.
 
-    ``'rests'`` (the valve resting at the OP's reversals), ``'jumps'`` (a
-    flow's slips or take-ups), ``'kinks'`` (a level's slope steps),
-    ``'steps'`` (a level's answer to its set-point steps) or ``'events'``."""
+    Parameters
+    ----------
+    r : valvediag.scan.LoopResult
+
+    Returns
+    -------
+    str or None
+        ``'rests'`` (the valve resting at the OP's reversals), ``'jumps'``
+        (a flow's slips or take-ups), ``'kinks'`` (a level's slope steps),
+        ``'steps'`` (a level's answer to its set-point steps) or
+        ``'events'``; None for a verdict read from a cycle, or no valve
+        verdict.
+    """
     ev = r.evidence or {}
     if not ev.get("from_events") or r.verdict not in ("stiction", "backlash", "undecided"):
         return None
@@ -257,9 +267,20 @@ def _from_events(r) -> str | None:
     return "events"
 
 
-def _swings(r) -> bool:
-    """Does the loop swing regularly, as
-    :attr:`valvediag.analysis.oscillation.Oscillation.is_regular` reads it?"""
+def swings_regularly(r) -> bool:
+    """Does the loop swing regularly?
+
+    Parameters
+    ----------
+    r : valvediag.scan.LoopResult
+
+    Returns
+    -------
+    bool
+        The test of
+        :attr:`valvediag.analysis.oscillation.Oscillation.is_regular`, on
+        the figures the result's evidence keeps (False where it keeps none).
+    """
     ev = r.evidence or {}
     reg, cycles = ev.get("regularity"), ev.get("cycles")
     acf, fold = ev.get("acf_at_period"), ev.get("periodic_fraction")
@@ -306,14 +327,14 @@ def _how_events(r, kind: str) -> str | None:
 
 def _opening(r) -> str:
     v = r.verdict
-    events = _from_events(r)
+    events = read_from_events(r)
     if events and v in ("stiction", "backlash"):
         what = ("sticks: it holds its position while the controller pushes, then jumps"
                 if v == "stiction" else
                 "has play (backlash or dead band): each time the controller reverses, the "
                 "valve does not move until the slack in the linkage or positioner is taken "
                 "up")
-        if _swings(r):
+        if swings_regularly(r):
             return (f"The control valve {what}. Its movements show in the record, read one by "
                     f"one beside the loop's swing.")
         return (f"The control valve {what}. The loop does not swing regularly, but the "
@@ -365,9 +386,9 @@ def explain(r, history=None) -> list[str]:
     if r.verdict in ("insufficient-data",):
         out.append(f"Why: {r.reason}.")
         return out
-    events = _from_events(r)
+    events = read_from_events(r)
     amount = _amount(r)
-    if amount and r.verdict != "no-oscillation" and (not events or _swings(r)):
+    if amount and r.verdict != "no-oscillation" and (not events or swings_regularly(r)):
         # a record read by its events may hold no regular swing to size
         out.append(amount)
     how = (_how_events(r, events) if events else None) or _how(r)

@@ -33,6 +33,7 @@ import numpy as np
 from markupsafe import escape
 
 from ..analysis.bi import ANGLE_UNIT
+from .explain import read_from_events, swings_regularly
 
 __all__ = ["loop_svg", "WIDTH", "HEIGHT"]
 
@@ -694,8 +695,11 @@ def loop_svg(result, prefix: str, *, zoom_cycles: float = 4.0, title: str | None
 
     _trend(ax_t, ax_o, result, detail, _highlight(result, detail))
     ax_t.ylabel = f"PV{unit}"
+    # a valve read from its events in a record without a regular swing
+    events = read_from_events(result) is not None and not swings_regularly(result)
     ax_t.title = ("Trend over the window (UTC): process value (PV, blue) and set point (SP, "
-                  "dashed); oscillating stretches shaded, the one diagnosed darker")
+                  "dashed); " + ("the stretch whose valve events were read shaded" if events
+                                 else "oscillating stretches shaded, the one diagnosed darker"))
     ax_o.title = "Controller output (OP): what the controller asks of the valve"
 
     start = detail.diagnosis_start
@@ -708,7 +712,9 @@ def loop_svg(result, prefix: str, *, zoom_cycles: float = 4.0, title: str | None
                       f"the angles measured there (BI {bres.bi:.2f})")
     elif diag is not None and diag.pv is not None:
         _zoom_linear(ax_z, zbox, diag, zoom_cycles)
-        ax_z.title = (f"Zoom on {zoom_cycles:g} cycles: PV with its peaks and valleys, "
+        ax_z.title = ("Zoom on a stretch: PV with its peaks and valleys, OP in orange (no "
+                      "regular cycle: the verdict stands on the valve's events)" if events
+                      else f"Zoom on {zoom_cycles:g} cycles: PV with its peaks and valleys, "
                       "OP in orange")
     else:
         ax_z.blank("no oscillation data kept")
