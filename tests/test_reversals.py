@@ -95,6 +95,26 @@ def test_the_turns_name_a_dead_band_where_the_load_moves_the_pv_during_the_rests
     assert not q.found and q.turn_travel_spread > TURN_TRAVEL_SPREAD, q.reason
 
 
+def test_a_pump_that_starts_and_stops_by_a_fixed_step_is_no_dead_band():
+    # an on/off pump steps the load by the same amount each time: the PV
+    # moves first, the OP answers by a fixed travel and the PV turns back
+    # when it has, so the turns' travels spread little (8 %) while their
+    # durations and the legs spread with the wandering load; but the PV
+    # moved with the OP's travel before its turn, which no rest does
+    rng = np.random.default_rng(3)
+    lvl = np.zeros(N)
+    for k in np.sort(rng.uniform(0, N, 40)).astype(int):
+        lvl[k:] = 1.0 - lvl[k]
+    load = 3.0 * lvl + _wandering_load(seed=3, size=0.5)
+    pv, op, sp = _flow("linear", {}, load=load, seed=3)
+    r = reversal_rests(pv, op, H, sp=sp)
+    assert r.excursions >= MIN_TURNS_FIXED
+    assert r.turn_travel_spread <= TURN_TRAVEL_SPREAD            # the travel alone would name it
+    assert r.turn_duration_spread >= DURATION_SPREAD
+    assert r.turn_gain_rest < -0.5 * r.turn_gain_follow
+    assert not r.found and not r.by_turns, r.reason
+
+
 def test_a_periodic_load_rests_at_a_fixed_time_and_names_no_dead_band():
     # a clipped load turns the PV at the same OP travel and after the same
     # time at every cycle: a linear valve behind the process's lag then shows

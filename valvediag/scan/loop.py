@@ -486,8 +486,8 @@ def signature_size(evidence: Mapping, fault: str) -> dict:
         travel during the rests (confidence 0.5: 0.85-1.02 of the simulated
         band, median 0.94, on 37 loose flow valves of the realistic
         benchmark's study seeds), or, where only the PV's turns at a fixed
-        travel name it, from each reversal to the PV's turn (0.94-1.07,
-        median 1.00, on the 15 loose flow valves of seeds 1, 2 and 10-26 so
+        travel name it, from each reversal to the PV's turn (0.94-1.06,
+        median 1.00, on the 13 loose flow valves of seeds 1, 2 and 10-26 so
         named; 0.86-1.10, median 0.97, on the 101 named by their rests).
     """
     sig = evidence.get("signature") or {}
