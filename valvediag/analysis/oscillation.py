@@ -27,7 +27,8 @@ from scipy.fft import irfft, next_fast_len, rfft
 
 from .quality import white_noise_std
 
-__all__ = ["Oscillation", "detect_oscillation", "acf_period", "acf_regularity"]
+__all__ = ["Oscillation", "detect_oscillation", "acf_period", "acf_regularity",
+           "regular_oscillation"]
 
 #: Hysteresis band as a fraction of the half peak-to-peak range.
 BAND_FRACTION = 0.2
@@ -392,9 +393,10 @@ class Oscillation:
 
     @property
     def is_regular(self) -> bool:
-        """Regular oscillation: Thornhill regularity > 1, strong ACF and shape."""
-        return bool(self.cycles >= 2 and self.regularity > 1.0 and self.acf_at_period > ACF_STRONG
-                    and self.periodic_fraction > PERIODIC_FRACTION_MIN)
+        """Regular oscillation: Thornhill regularity > 1, strong ACF and shape
+        (:func:`regular_oscillation`)."""
+        return regular_oscillation(self.cycles, self.regularity, self.acf_at_period,
+                                   self.periodic_fraction)
 
     def plot(self, ax=None):
         """Plot the detrended record with its apices marked."""
@@ -522,6 +524,37 @@ def _periodic_fraction(y, apex_idx, apex_sign, nbins=32):
             tot += C.var() * C.size
             res += ((C - C.mean(axis=0)) ** 2).sum()
     return float(max(0.0, 1.0 - res / tot)) if tot > 0 else 0.0
+
+
+
+def regular_oscillation(cycles, regularity, acf_at_period, periodic_fraction) -> bool:
+    """Is an oscillation so described regular?
+
+    Parameters
+    ----------
+    cycles : float
+        Cycles in the record [-].
+    regularity : float
+        Thornhill's regularity [-].
+    acf_at_period : float
+        Autocorrelation at one period [-].
+    periodic_fraction : float
+        Share of the record's variance that the mean cycle holds [-].
+
+    Returns
+    -------
+    bool
+        At least two cycles, regularity above 1, the autocorrelation above
+        :data:`ACF_STRONG` and the mean cycle's share above
+        :data:`PERIODIC_FRACTION_MIN`; False where a figure is missing or NaN
+        (a verdict's evidence kept in a store may lack them). An infinite
+        regularity (every crossing interval alike) is regular.
+    """
+    vals = (cycles, regularity, acf_at_period, periodic_fraction)
+    if any(v is None or np.isnan(v) for v in vals):
+        return False
+    return bool(cycles >= 2 and regularity > 1.0 and acf_at_period > ACF_STRONG
+                and periodic_fraction > PERIODIC_FRACTION_MIN)
 
 
 def detect_oscillation(pv, sample_time: float, *, remove_drift: bool = True) -> Oscillation:

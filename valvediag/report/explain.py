@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from ..analysis.oscillation import ACF_STRONG, PERIODIC_FRACTION_MIN
+from ..analysis.oscillation import regular_oscillation
 
 __all__ = ["explain", "size_text", "duration_text", "confidence_word", "quality_label", "regularity_text",
            "read_from_events", "swings_regularly", "ACTIONS", "SHORT_ACTIONS", "VERDICT_LABELS"]
@@ -277,16 +277,12 @@ def swings_regularly(r) -> bool:
     Returns
     -------
     bool
-        The test of
-        :attr:`valvediag.analysis.oscillation.Oscillation.is_regular`, on
-        the figures the result's evidence keeps (False where it keeps none).
+        :func:`valvediag.analysis.oscillation.regular_oscillation` of the
+        figures the result's evidence keeps (False where it keeps none).
     """
     ev = r.evidence or {}
-    reg, cycles = ev.get("regularity"), ev.get("cycles")
-    acf, fold = ev.get("acf_at_period"), ev.get("periodic_fraction")
-    return (_finite(reg) and reg > 1.0 and _finite(cycles) and cycles >= 2
-            and _finite(acf) and acf > ACF_STRONG and _finite(fold)
-            and fold > PERIODIC_FRACTION_MIN)
+    return regular_oscillation(ev.get("cycles"), ev.get("regularity"), ev.get("acf_at_period"),
+                               ev.get("periodic_fraction"))
 
 
 def _how_events(r, kind: str) -> str | None:
