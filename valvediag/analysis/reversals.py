@@ -371,8 +371,8 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
     turns = turns[(turns >= m) & (turns < pv.size - m)]
     sp = None if sp is None else np.asarray(sp, dtype=float).ravel()
     legs = excursions = 0
-    rows = []
-    turned = []          # every excursion: reversal, turn, travel, the leg's travel, gains
+    # every excursion: reversal, turn, travel, the leg's travel, gains, a rest?
+    turned = []
     for a, b in zip(turns[:MAX_LEGS], turns[1:MAX_LEGS + 1]):
         if b - a < 2 * MIN_FIT or (sp is not None and not np.ptp(sp[a:b]) <= 3.0 * pv_noise):
             continue
@@ -394,15 +394,18 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
         g_r, se_r = _gain(pv, ops, a, a + j + 1, pv_noise)
         g_f, se_f = _gain(pv, ops, a + j, k + 1, pv_noise)
         g_r, g_f = sense * g_r, sense * g_f
-        turned.append((a, a + j, travel, abs(ops[b] - ops[a]), g_r, g_f))
-        if abs(g_r) <= 2.0 * se_r and g_f >= 3.0 * se_f and abs(g_r) + 2.0 * se_r <= 0.5 * g_f:
-            rows.append((a, a + j, travel, g_r, g_f))
+        rest = abs(g_r) <= 2.0 * se_r and g_f >= 3.0 * se_f and abs(g_r) + 2.0 * se_r <= 0.5 * g_f
+        turned.append((a, a + j, travel, abs(ops[b] - ops[a]), g_r, g_f, rest))
     if not legs:
         return ReversalRests(found=False, reason="no reversal of the OP beyond its noise with "
                              "the set point steady", **base)
-    a_, j_, trav, g_r, g_f = (np.asarray(c) for c in zip(*rows)) if rows else \
-        (np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0), np.zeros(0))
-    rests = len(rows)
+    e_start, e_turn, e_trav, e_leg, e_gr, e_gf, is_rest = (
+        (np.asarray(c) for c in zip(*turned)) if turned else
+        (np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0), np.zeros(0),
+         np.zeros(0), np.zeros(0, bool)))
+    is_rest = is_rest.astype(bool)
+    a_, j_, trav, g_r, g_f = (v[is_rest] for v in (e_start, e_turn, e_trav, e_gr, e_gf))
+    rests = int(is_rest.sum())
     band = float(np.median(trav)) if rests else math.nan
     s_trav = s_dur = math.nan
     if rests >= MIN_RESTS_FIXED:
@@ -414,14 +417,13 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
     t_trav = t_dur = s_leg = g_rest = g_follow = math.nan
     turn_band = math.nan
     answers = False
-    if len(turned) >= MIN_TURNS_FIXED:
-        e_start, e_turn, trav_all, leg, e_gr, e_gf = (np.asarray(c) for c in zip(*turned))
+    if excursions >= MIN_TURNS_FIXED:
         dur = (e_turn - e_start).astype(float)
-        ok = (trav_all > 0) & (leg > 0)
+        ok = (e_trav > 0) & (e_leg > 0)
         if ok.sum() >= MIN_TURNS_FIXED:
             t_trav, t_dur, s_leg = (float(median_abs_deviation(np.log(v[ok]), scale="normal"))
-                                    for v in (trav_all, dur, leg))
-            turn_band = float(np.median(trav_all[ok]))
+                                    for v in (e_trav, dur, e_leg))
+            turn_band = float(np.median(e_trav[ok]))
             # on the median, the PV answered the OP after its turn and not
             # before, as at a rest: a load's step of a fixed size moves the
             # PV first and the OP answers it by a fixed travel too, but there
@@ -443,7 +445,7 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
                        "up at any speed, not a process delay)")
     elif found:
         band = turn_band
-        a_, j_, trav, g_r, g_f = e_start, e_turn, trav_all, e_gr, e_gf
+        a_, j_, trav, g_r, g_f = e_start, e_turn, e_trav, e_gr, e_gf
         reason = (f"at {excursions} excursions of the PV after the OP's reversals the PV turned "
                   f"back once the OP had moved about {band:.2g} (spread {100 * t_trav:.0f} %), "
                   f"however long that took (durations spread {100 * t_dur:.0f} %) and however "
@@ -462,6 +464,6 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
                          turn_duration_spread=t_dur, leg_spread=s_leg,
                          turn_gain_rest=g_rest, turn_gain_follow=g_follow,
                          by_turns=bool(found and not (many or fixed)),
-                         start=np.asarray(a_).astype(int), turn=np.asarray(j_).astype(int),
+                         start=a_.astype(int), turn=j_.astype(int),
                          travel=trav.astype(float), gain_rest=g_r.astype(float),
                          gain_follow=g_f.astype(float), **base)
