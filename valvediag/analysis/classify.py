@@ -59,7 +59,7 @@ import numpy as np
 from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
 from .bumps import SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps
 from .linearity import CycleShape, cycle_shape, mean_cycles
-from .oscillation import Oscillation, detect_oscillation, turned_cycles
+from .oscillation import Oscillation, detect_oscillation, phase_wander, turned_cycles
 from .quality import bridge_short_gaps, despike, longest_run, stored_points, white_noise_std
 from .reversals import reversal_rests
 from .signature import (KIND_SHARE, SENSE_SKEW, ValveSignature, controller_lag,
@@ -788,6 +788,17 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        "against the OP", process_screen=pscreen, shape=shape, **common)
     if travel is not None and travel.fault and selfreg:
         return travel_verdict(process_screen=pscreen, shape=shape, **common)
+    clock = phase_wander(x, osc, u)
+    ev["phase_wander"] = clock.as_dict()
+    if clock.keeps_clock and not (travel is not None and travel.fault):
+        # a valve's limit cycle is the loop's own oscillation: noise moves its
+        # phase for good. One that keeps a clock's time is driven from outside
+        return verdict(
+            "linear-oscillation", c_data * proc_conf * 0.85,
+            f"{clock.reason}: a periodic load from outside the loop (a timer, a machine, a "
+            "batch step) drives it, not the valve, whose own limit cycle would wander with "
+            "the noise; trace the disturbance; method: the phase's wander over the cycles",
+            process_screen=pscreen, shape=shape, **common)
     amp_cv = osc.amplitude_variation
     ev["amplitude_variation"] = amp_cv
     if np.isfinite(amp_cv) and amp_cv >= RESONANCE_VARIATION:

@@ -1161,7 +1161,7 @@ def loop_sense(pv, op) -> float:
     return float(np.sign(r[lag + SENSE_SKEW])) if lag is not None else 0.0
 
 
-def controller_lag(pv, op) -> tuple[int | None, np.ndarray]:
+def controller_lag(pv, op, *, noise_only: bool = False) -> tuple[int | None, np.ndarray]:
     """The lag at which the OP answers the PV's noise, and the correlations read.
 
     Parameters
@@ -1169,6 +1169,12 @@ def controller_lag(pv, op) -> tuple[int | None, np.ndarray]:
     pv, op : array_like, shape (n,)
         One stretch of a loop in automatic [PV unit, OP unit]; non-finite
         samples count as no move.
+    noise_only : bool
+        Leave out the moves of either beyond four robust standard deviations
+        of its own (a cycle's corners, a load's steps, which both answer at
+        once whatever the noise does), and find no answer where either has no
+        spread of moves at all (a noise-free OP): the answer to the noise
+        alone. Default False: every move counts.
 
     Returns
     -------
@@ -1202,6 +1208,13 @@ def controller_lag(pv, op) -> tuple[int | None, np.ndarray]:
     ok = np.isfinite(dp) & np.isfinite(du)
     if not ok.any():
         return None, r
+    if noise_only:
+        sp, su = (1.4826 * float(np.median(np.abs(d[ok] - np.median(d[ok])))) for d in (dp, du))
+        if not (sp > 0 and su > 0):
+            return None, r
+        ok &= (np.abs(dp) <= 4.0 * sp) & (np.abs(du) <= 4.0 * su)
+        if not ok.any():
+            return None, r
     # a missing move counts as none, so that the lags stay aligned
     dp = np.where(ok, dp - dp[ok].mean(), 0.0)
     du = np.where(ok, du - du[ok].mean(), 0.0)
