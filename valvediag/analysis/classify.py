@@ -17,7 +17,11 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    level valve's slips do.
 3. ``linear-oscillation``: a regular oscillation that no valve nonlinearity
    explains (tuning or an external disturbance); send no one to the valve.
-   A sinusoidal PV, an OP that stands still, a valve position implied by
+   A swing that keeps a clock's time, read before any valve method
+   (:func:`~valvediag.analysis.oscillation.phase_wander`: a valve's limit
+   cycle is the loop's own, and its phase wanders with the noise; a load
+   driven from outside keeps its phase), a sinusoidal PV, an OP that stands
+   still, a valve position implied by
    the PV that follows the OP (:func:`follows_op`), or cycles whose
    amplitude wanders as a noise-driven resonance's does
    (:attr:`~valvediag.analysis.oscillation.Oscillation.amplitude_variation`:

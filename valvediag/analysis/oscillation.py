@@ -735,6 +735,7 @@ def phase_wander(pv, osc: Oscillation, op=None) -> PhaseWander:
        Financial Studies 1, 41-66.
     """
     h = float(osc.sample_time)
+    x = np.asarray(pv, dtype=float)
     y = np.asarray(osc.baseline_removed, dtype=float)
     P = osc.period / h if np.isfinite(osc.period) else np.nan
     if not (np.isfinite(P) and P >= 6 and y.size >= 3 * P):
@@ -746,9 +747,10 @@ def phase_wander(pv, osc: Oscillation, op=None) -> PhaseWander:
     enter = st[1:][(sg[1:] > 0) & (sg[:-1] < 0)]                  # runs above from below
     prev = st[:-1][(sg[1:] > 0) & (sg[:-1] < 0)]
     up = np.flatnonzero((ys[:-1] < 0) & (ys[1:] >= 0)) + 1       # first sample at or above 0
-    j = np.searchsorted(up, enter, side="right") - 1
-    ok = (j >= 0) & (up[np.maximum(j, 0)] > prev)
-    k = up[j[ok]] if up.size else np.zeros(0, np.int64)
+    k = np.zeros(0, np.int64)
+    if up.size:
+        j = np.searchsorted(up, enter, side="right") - 1
+        k = up[j[(j >= 0) & (up[np.maximum(j, 0)] > prev)]]
     if k.size < MIN_CROSSINGS:
         return PhaseWander(False, f"{k.size} upward crossings, fewer than {MIN_CROSSINGS}: "
                            "too few to read the phase's wander", crossings=int(k.size))
@@ -757,13 +759,15 @@ def phase_wander(pv, osc: Oscillation, op=None) -> PhaseWander:
     slope = float(np.median(b - a))
     d = np.diff(t)
     like = np.abs(d / np.median(d) - 1.0) <= 0.4
+    if not like.any():
+        return PhaseWander(False, "no two periods alike: no clock to read", crossings=int(k.size))
     # the longest run of like periods: a missed or extra crossing is no wander
     edges = np.flatnonzero(np.diff(np.r_[0, like.astype(np.int8), 0]))
     s0, s1 = edges[::2], edges[1::2]
     i = int(np.argmax(s1 - s0))
     t = t[s0[i]:s1[i] + 1]
     n = int(t.size)
-    noise = white_noise_std(pv)
+    noise = white_noise_std(x)
     q = noise / slope if slope > 0 else np.inf
     d = np.diff(t)
     common = dict(crossings=n, jitter=float(np.std(d)) * h if d.size else np.nan,
@@ -774,7 +778,6 @@ def phase_wander(pv, osc: Oscillation, op=None) -> PhaseWander:
     if not (np.isfinite(q) and q >= MIN_TIMING_NOISE) or not np.std(d) >= MIN_JITTER:
         return PhaseWander(False, "too little noise to move the phase of a limit cycle: "
                            "its wander is not read", **common)
-    x = np.asarray(pv, dtype=float)
     raw = stored_points(x).size >= STORED_SHARE * np.count_nonzero(np.isfinite(x))
     if op is not None and raw:
         lag, r = controller_lag(x, op, noise_only=True)
