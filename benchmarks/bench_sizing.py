@@ -81,7 +81,7 @@ def simulate(h: float, seed: int, noise_model: str = "loop"):
                 sim = run(sel, kind, sigma, band_factor[sel] * kc[sel] * sigma)
                 pvs, ops = sim.pv, sim.op
             else:
-                # noise added to the clean record, as synth-plant does: the OP gets
+                # noise added to the clean record afterwards: the OP gets
                 # the controller's proportional response, which the valve never saw
                 n = rng.standard_normal(clean.pv.shape) * sigma[:, None]
                 pvs, ops = clean.pv + n, clean.op - kc[sel, None] * n
@@ -151,7 +151,7 @@ def main():
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--noise-model", choices=("loop", "posthoc"), default="loop",
                     help="measurement noise fed back through the loop (default), or added "
-                         "to a clean record afterwards as synth-plant does")
+                         "to a clean record afterwards (the OP gets -Kc n)")
     args = ap.parse_args()
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
     t0 = time.perf_counter()

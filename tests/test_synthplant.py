@@ -8,6 +8,8 @@ import numpy as np
 import polars as pl
 import pytest
 
+from valvediag.analysis.oscillation import (CLOCK_WANDER, MIN_CROSSINGS, detect_oscillation,
+                                            phase_wander)
 from valvediag.synth import plant as sp
 from valvediag.synth.plant import (
     DIGITAL_STATES,
@@ -249,6 +251,28 @@ def test_stiction_loop_oscillates_at_stated_period(plant, samples):
         # amplitude: half the 2nd-98th percentile range of the data vs the truth
         lo, hi = np.nanpercentile(y, [2, 98])
         assert 0.5 * (hi - lo) == pytest.approx(row["amplitude"], rel=0.35), row["loop"]
+
+
+def test_a_valve_faults_limit_cycle_wanders_with_the_noise_its_loop_answers(plant, samples):
+    """The noise goes round a faulty loop, as on a plant: the OP answers it and
+    the limit cycle's phase random-walks. Noise added to the record afterwards
+    would leave a cycle that keeps a clock's time, as a load from outside does."""
+    rows = plant.truth.filter(pl.col("truth_verdict").is_in(["stiction", "backlash"]))
+    read = 0
+    for row in rows.iter_rows(named=True):
+        t, x, _ = _series(samples, row["loop"] + ".PV")
+        t_op, x_op, _ = _series(samples, row["loop"] + ".OP")
+        if np.mean(np.diff(t) > TS) > 0.05 or np.mean(np.diff(t_op) > TS) > 0.05:
+            continue  # compressed
+        grid, y = _segment(t, x, TS)
+        ok = np.isfinite(x_op)
+        u = np.interp(grid, t_op[ok], x_op[ok])
+        pw = phase_wander(y, detect_oscillation(y, TS), u)
+        if pw.crossings < MIN_CROSSINGS:
+            continue
+        assert not pw.keeps_clock and pw.wander > 2 * CLOCK_WANDER, (row["loop"], pw.reason)
+        read += 1
+    assert read >= 1
 
 
 def test_healthy_loop_does_not_oscillate(plant, samples):

@@ -664,19 +664,25 @@ def _scenarios(lp, tm, warm):
                 sp_step=lp.sp_step / lp.g, sp_step_time=T(lp.sp_step_t),
                 load=lp.op0, load_step=lp.load_step, load_step_time=T(lp.load_step_t),
                 load_drift=lp.load_drift / total, sin_a=lp.sin_amp, sin_p=lp.sin_period,
-                sin_phi=lp.sin_phase, noise=0.0)
+                sin_phi=lp.sin_phase, noise=0.0, vband=0.0)
     if lp.valve != "linear":
         # Kick the stuck valve at the start of the warm-up. No load drift: a
         # steady load ramp changes a stiction cycle's period by up to 50 %, so
         # the record would no longer match the pilot's period.
         base["load_step"], base["load_step_time"] = 1.0, tm.h
         base["load_drift"] = 0.0
+        # the measurement noise goes round the loop, as on a plant: the
+        # controller answers it, and the limit cycle's phase wanders with it.
+        # Kano's actuator ignores reversals within its noise band [OP units]
+        sigma = _fault_noise_span(lp) / lp.g
+        base["noise"] = sigma
+        base["vband"] = 6.0 * abs(lp.kc) * sigma if lp.valve == "kano" else 0.0
     else:
         base["noise"] = lp.noise_span / lp.g
     rows = [base]
     for per, phi, w in lp.comps:
         rows.append(dict(base, sp_step=0.0, load=0.0, load_step=0.0, load_drift=0.0, sin_a=w,
-                         sin_p=per, sin_phi=phi, noise=0.0))
+                         sin_p=per, sin_phi=phi, noise=0.0, vband=0.0))
     return rows
 
 
@@ -725,7 +731,7 @@ def _simulate(loops, tm, seed, process, linear):
             load=col("load"), load_step=col("load_step"), load_step_time=col("load_step_time"),
             load_drift=col("load_drift"), load_sin_amplitude=col("sin_a"),
             load_sin_period=col("sin_p"), load_sin_phase=col("sin_phi"),
-            noise_std=col("noise"), seed=int(seeds[ci]),
+            noise_std=col("noise"), valve_noise_band=col("vband"), seed=int(seeds[ci]),
             op_limits=(-np.inf, np.inf) if linear else (0.0, 100.0))
         pv, op, mv, sp = (np.atleast_2d(a) for a in (sim.pv, sim.op, sim.mv, sim.sp))
         owner = np.array(owner)
@@ -1177,12 +1183,15 @@ def synth_plant(n_loops: int, days: float, sample_time: float, out_dir, *, seed:
     every ``m``-th sample. Healthy loops are tuned for zeta 0.8-1.3 (tau
     20-300 s integrating).
 
-    **Noise.** Kano's model sticks at every reversal of a noisy input [2]_,
-    so fault loops run without loop noise. White measurement noise of 0.5-2 %
-    of the oscillation amplitude is added to the recorded PV afterwards, and
-    the recorded OP gets the proportional response ``-Kc n`` to that noise.
-    Linear loops feed their noise (0.5-2 % of the amplitude, or 0.05-0.4 % of
-    span for healthy loops) back to the controller. In the truth,
+    **Noise.** Every loop feeds its white measurement noise back to the
+    controller, as a plant does: fault loops 0.5-2 % of the oscillation
+    amplitude the pilots found, linear loops 0.5-2 % of the amplitude, or
+    0.05-0.4 % of span for healthy loops. So a limit cycle's phase wanders
+    with the noise, as a real one's does; noise added to a record afterwards
+    would leave it keeping perfect time, like a load driven by a clock.
+    Kano's model sticks at every reversal of a noisy input [2]_, so its
+    actuator ignores reversals within a noise band of ``6 Kc sigma`` (the
+    OP's answer to the noise). The pilots run without noise. In the truth,
     ``noise_pct`` is the noise standard deviation in % of the oscillation
     amplitude, or in % of the span for loops that do not oscillate.
 
@@ -1586,14 +1595,25 @@ def _fault_params(lp):
     return ""
 
 
+def _fault_noise_span(lp):
+    """Measurement noise std of a valve-fault loop [% of span]."""
+    return lp.noise_pct / 100.0 * lp.amp_pct if np.isfinite(lp.amp_pct) else 0.05
+
+
 def _finish_loop(lp, r, tag_list, rng, tm):
-    """Scale a simulated record to engineering units, add noise and artefacts."""
+    """Scale a simulated record to engineering units, add artefacts."""
     P, A, ncyc, cv = r["stats_pv"]
     cat = lp.sim_category
+    if lp.valve != "linear":
+        lp.noise_span = _fault_noise_span(lp)   # what the simulation fed back
     if cat in _FAULTS + ("linear-oscillation",):
         lp.oscillates = _oscillates(P, A, ncyc, cv)
         lp.period = P
         lp.amp_pct = A * lp.g
+        if lp.valve != "linear":
+            # the truth states the noise against the amplitude as recorded
+            lp.noise_pct = (100.0 * lp.noise_span / lp.amp_pct if lp.oscillates
+                            else lp.noise_span)
         if not lp.oscillates and lp.category != "bad-data":
             lp.notes.append(f"the record's cycle is irregular ({ncyc} cycles, period spread "
                             f"{cv:.2f}): truth set to no-oscillation")
@@ -1604,11 +1624,6 @@ def _finish_loop(lp, r, tag_list, rng, tm):
     op = r["op"]
     mv = r["mv"]
     if lp.valve != "linear":
-        sigma = lp.noise_pct / 100.0 * lp.amp_pct if np.isfinite(lp.amp_pct) else 0.05
-        lp.noise_span = sigma
-        n = rng.standard_normal(pv_pct.size) * sigma
-        pv_pct = pv_pct + n
-        op = op - (lp.kc / lp.g) * n
         mv = mv + 0.02 * rng.standard_normal(mv.size)
         desc = (f"{'Kano' if lp.valve == 'kano' else 'backlash'} valve; Kc={lp.kc / lp.g:.3g} %/% "
                 f"Ti={lp.ti_r * lp.tau:.3g} s tau={lp.tau:.3g} s"
