@@ -177,6 +177,24 @@ def test_plain_words_for_a_planner(loops):
     assert "first reported on 2026-01-01; 4 runs" in " ".join(explain(stiction, rep))
 
 
+def test_plain_words_for_a_swing_that_keeps_a_clock(loops):
+    # a swing read as a load from outside by its steady timing: the words say
+    # so, and do not call it a smooth sine wave
+    linear = loops[1]
+    clock = dataclasses.replace(linear, evidence={
+        **(linear.evidence or {}), "pv_distortion": 0.2,
+        "phase_wander": {"keeps_clock": True, "crossings": 300, "wander": 0.51}})
+    words = " ".join(explain(clock))
+    assert "keeps its own time" in words and "like a sine wave" not in words
+    assert "over 300 cycles the swing keeps time like a clock" in words
+    assert "0.51 times" in words and "about 20 times" in words
+    # a swing whose timing wanders keeps the words it had
+    wanders = dataclasses.replace(linear, evidence={
+        **(linear.evidence or {}),
+        "phase_wander": {"keeps_clock": False, "crossings": 300, "wander": 9.0}})
+    assert "keeps its own time" not in " ".join(explain(wanders))
+
+
 def test_plain_words_for_a_valve_read_from_its_events(loops):
     # a verdict read from the valve's events stands on no regular swing: the
     # words say so, say what was seen, and where its size comes from

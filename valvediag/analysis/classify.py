@@ -17,7 +17,11 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    level valve's slips do.
 3. ``linear-oscillation``: a regular oscillation that no valve nonlinearity
    explains (tuning or an external disturbance); send no one to the valve.
-   A sinusoidal PV, an OP that stands still, a valve position implied by
+   A swing that keeps a clock's time, read before any valve method
+   (:func:`~valvediag.analysis.oscillation.phase_wander`: a valve's limit
+   cycle is the loop's own, and its phase wanders with the noise; a load
+   driven from outside keeps its phase), a sinusoidal PV, an OP that stands
+   still, a valve position implied by
    the PV that follows the OP (:func:`follows_op`), or cycles whose
    amplitude wanders as a noise-driven resonance's does
    (:attr:`~valvediag.analysis.oscillation.Oscillation.amplitude_variation`:
@@ -788,13 +792,17 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        "against the OP", process_screen=pscreen, shape=shape, **common)
     if travel is not None and travel.fault and selfreg:
         return travel_verdict(process_screen=pscreen, shape=shape, **common)
-    # a valve's limit cycle is the loop's own oscillation: noise moves its
-    # phase for good; one that keeps a clock's time is driven from outside.
-    # Kept as evidence only: the synthetic plant's faulty loops run without
-    # noise in the loop (their noise is added to the record afterwards, with
-    # the OP's answer), so their limit cycles keep time too, and the reading
-    # cannot yet tell them from a load (see phase_wander, Notes)
-    ev["phase_wander"] = phase_wander(x, osc, u).as_dict()
+    clock = phase_wander(x, osc, u)
+    ev["phase_wander"] = clock.as_dict()
+    if clock.keeps_clock and not (travel is not None and travel.fault):
+        # a valve's limit cycle is the loop's own oscillation: noise moves its
+        # phase for good. One that keeps a clock's time is driven from outside
+        return verdict(
+            "linear-oscillation", c_data * proc_conf * 0.85,
+            f"{clock.reason}: a periodic load from outside the loop (a timer, a machine, a "
+            "batch step) drives it, not the valve, whose own limit cycle would wander with "
+            "the noise; trace the disturbance; method: the phase's wander over the cycles",
+            process_screen=pscreen, shape=shape, **common)
     amp_cv = osc.amplitude_variation
     ev["amplitude_variation"] = amp_cv
     if np.isfinite(amp_cv) and amp_cv >= RESONANCE_VARIATION:

@@ -714,17 +714,14 @@ def phase_wander(pv, osc: Oscillation, op=None) -> PhaseWander:
     early or late: a limit cycle whose phase hardly moves against its
     crossings' jitter reads as a clock over a few tens of cycles.
 
-    :func:`~valvediag.analysis.classify.classify_loop` keeps the reading as
-    evidence and does not yet decide a verdict with it. On the realistic
-    benchmark (noise in the loop) it would take 13 of the 17 false alarms of
-    the study seeds away, and its only other change there was a disturbed
-    level's ``insufficient-data`` to its true verdict; but the synthetic
-    plant's faulty loops run without noise in the loop (their noise is added
-    to the record afterwards, with the OP's answer to it), so their limit
-    cycles keep time as well: on 1,000 of its loop-days 110 of the 146 loose
-    valves read ``backlash`` and 13 sticky ones read ``stiction`` would read
-    as loads. Telling them apart needs a plant whose noise enters the loop, or
-    a check that the valve passes the controller's smallest moves.
+    :func:`~valvediag.analysis.classify.classify_loop` reads a swing that
+    keeps a clock's time as a load from outside the loop
+    (``linear-oscillation``). That stands on the noise going round the loop,
+    as it does on a plant. A simulation that adds the noise to a limit
+    cycle's record afterwards keeps perfect time and reads as a load: the
+    synthetic plant did so until its faulty loops took their noise into the
+    loop, and on 1,000 of its loop-days 110 of its 146 loose valves and 13
+    sticky ones then read as loads.
 
     It says nothing where the oscillation wanders: a load from another
     loop's limit cycle wanders too. A loop entrained by a periodic load

@@ -229,6 +229,14 @@ def _how_shape(r) -> str | None:
                 f"(stiction) and {hi:g} (backlash).")
     if r.verdict == "linear-oscillation":
         d = ev.get("pv_distortion")
+        clock = ev.get("phase_wander") or {}
+        if clock.get("keeps_clock") and _finite(clock.get("wander")):
+            n = clock.get("crossings") or 0
+            return (f"How we know: over {n} cycles the swing keeps time like a clock: each "
+                    f"cycle comes a little early or late, but the error never carries over "
+                    f"(its timing scatters {clock['wander']:.2f} times the spread of one "
+                    f"cycle's length about a steady clock; a valve's own swing drifts with "
+                    f"the noise, about {n / 15:.0f} times over so many cycles).")
         if ev.get("op_moves") is False:
             return ("How we know: the measurement swings while the controller output stands "
                     "still, so the swing comes from outside the loop.")
@@ -347,6 +355,11 @@ def _opening(r) -> str:
         return ("The control valve does not follow the controller in proportion, but the "
                 "data cannot tell whether it sticks or has play.")
     if v == "linear-oscillation":
+        if ((r.evidence or {}).get("phase_wander") or {}).get("keeps_clock"):
+            return ("The loop swings regularly, in step with something outside it that "
+                    "keeps its own time (a machine, a timer, a batch step elsewhere in the "
+                    "plant): a sticky or loose valve's swing would drift in timing with the "
+                    "noise. The likely cause is that disturbance, not this valve; trace it.")
         if ((r.evidence or {}).get("valve_travel") or {}).get("verdict") == "linear":
             return ("The loop swings regularly, but its valve follows the controller, as its "
                     "reported position shows. The likely cause is the controller tuning or a "
