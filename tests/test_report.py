@@ -42,6 +42,10 @@ def analysed(kind: str, loop: str = "LIC1", seed: int = 1, hours: float = 2.0):
         tri = signal.sawtooth(2 * np.pi * t / P, 0.5)
         pv = 50 + tri + rng.normal(0, 0.01, t.size)
         op = 50 + 5 * signal.square(2 * np.pi * t / P + 0.3) + 2 * tri
+    elif kind == "clock":
+        # a clipped sine kept by a clock, whose noise a P controller answers
+        pv = 50 + np.clip(1.5 * np.sin(2 * np.pi * t / P), -1, 1) + rng.normal(0, 0.05, t.size)
+        op = 40 - 1.5 * (pv - 50)
     elif kind == "linear":
         pv = 50 + np.sin(2 * np.pi * t / P) + rng.normal(0, 0.01, t.size)
         op = 50 + 5 * np.sin(2 * np.pi * t / P + 1)
@@ -126,6 +130,15 @@ def test_figure_draws_the_evidence_of_each_kind(loops):
     lin = loop_figure(linear, "b")
     assert "sine wave" in lin and "Backlash Index of every half cycle" not in lin
     assert loop_figure(loops[2], "c") is None              # healthy: no figure
+
+
+def test_figure_of_a_swing_that_keeps_a_clock_shows_its_timing():
+    r = analysed("clock", "FIC4", 4)
+    assert r.verdict == "linear-oscillation" and r.detail.diagnosis.clock.keeps_clock, r.reason
+    s = loop_figure(r, "k")
+    assert "Each cycle&#39;s start against a steady clock" in s
+    assert "sine wave" not in s and "Backlash Index of every half cycle" not in s
+    ET.fromstring(s)
 
 
 def test_figure_text_from_the_data_is_escaped(loops):

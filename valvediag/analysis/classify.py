@@ -63,7 +63,8 @@ import numpy as np
 from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
 from .bumps import SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps
 from .linearity import CycleShape, cycle_shape, mean_cycles
-from .oscillation import Oscillation, detect_oscillation, phase_wander, turned_cycles
+from .oscillation import (Oscillation, PhaseWander, detect_oscillation, phase_wander,
+                          turned_cycles)
 from .quality import bridge_short_gaps, despike, longest_run, stored_points, white_noise_std
 from .reversals import reversal_rests
 from .signature import (KIND_SHARE, SENSE_SKEW, ValveSignature, controller_lag,
@@ -299,6 +300,9 @@ class LoopDiagnosis:
         The intermediate results, for plots.
     travel : valvediag.analysis.travel.ValveTravel or None
         What the recorded valve position showed, where one was given.
+    clock : valvediag.analysis.oscillation.PhaseWander or None
+        The swing's timing, where it kept a clock's time and decided the
+        verdict.
     pv, op : numpy.ndarray
         The analysed stretch of data.
     sample_time : float
@@ -320,6 +324,7 @@ class LoopDiagnosis:
     backlash: BacklashIndex | None = field(default=None, repr=False)
     shape: CycleShape | None = field(default=None, repr=False)
     travel: ValveTravel | None = field(default=None, repr=False)
+    clock: PhaseWander | None = field(default=None, repr=False)
     pv: np.ndarray = field(default=None, repr=False)
     op: np.ndarray = field(default=None, repr=False)
     sample_time: float = 1.0
@@ -802,7 +807,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             f"{clock.reason}: a periodic load from outside the loop (a timer, a machine, a "
             "batch step) drives it, not the valve, whose own limit cycle would wander with "
             "the noise; trace the disturbance; method: the phase's wander over the cycles",
-            process_screen=pscreen, shape=shape, **common)
+            process_screen=pscreen, shape=shape, clock=clock, **common)
     amp_cv = osc.amplitude_variation
     ev["amplitude_variation"] = amp_cv
     if np.isfinite(amp_cv) and amp_cv >= RESONANCE_VARIATION:

@@ -17,8 +17,11 @@ figure (five panels) from the plot data the scan kept
   position against the OP with its jumps in red
   (:meth:`valvediag.analysis.travel.ValveTravel.plot`);
 * for a valve fault, the Backlash Index of every half cycle against the
-  verdict limits; for a linear oscillation, the mean PV cycle against a pure
-  sine wave (its harmonic distortion is what makes it linear).
+  verdict limits; for a swing that keeps a clock's time, the start of each
+  cycle against the best steady clock
+  (:class:`valvediag.analysis.oscillation.PhaseWander`); for another linear
+  oscillation, the mean PV cycle against a pure sine wave (its harmonic
+  distortion is what makes it linear).
 
 :func:`loop_figure` writes the SVG elements itself
 (:func:`valvediag.report.plot.loop_svg`): the same text, byte for byte,

@@ -2,13 +2,14 @@
 The evidence figure of a loop drawn straight as SVG text, without matplotlib.
 
 :func:`loop_svg` draws the five panels of a loop's evidence (trend, OP,
-zoom on a few cycles, phase plot, Backlash Index per half cycle or mean
-cycle) as the report's matplotlib figures did, with the same titles,
-colours, line widths and layout (matplotlib's grid of the panels, its
-default 5 % margins and tick choice), but writes the SVG elements itself: a
-figure costs a few milliseconds instead of the ~0.5 s of matplotlib's
-artist, tick and text machinery, which made the figures nearly all of a
-plant report's cost (450 figures: ~4 min on 2 cores).
+zoom on a few cycles, phase plot, Backlash Index per half cycle, the
+swing's timing against a clock, or mean cycle) as the report's matplotlib
+figures did, with the same titles, colours, line widths and layout
+(matplotlib's grid of the panels, its default 5 % margins and tick choice),
+but writes the SVG elements itself: a figure costs a few milliseconds
+instead of the ~0.5 s of matplotlib's artist, tick and text machinery,
+which made the figures nearly all of a plant report's cost (450 figures:
+~4 min on 2 cores).
 
 Notes
 -----
@@ -612,6 +613,23 @@ def _cycle_durations(ax: _Panel, diag):
     ax.title = f"Duration of every cycle (dashed: the period, {diag.period:.4g} s)"
 
 
+def _clock_wander(ax: _Panel, clock):
+    """The swing's upward crossings against the best steady clock, cycle by cycle."""
+    t = np.asarray(clock.times, dtype=float)
+    if t.size < 3:
+        ax.blank("no crossings")
+        return
+    k = np.arange(t.size, dtype=float)
+    dev = t - np.polyval(np.polyfit(k, t, 1), k)
+    ax.hline(0.0, _grey(0.6), 1.0, dash=_DASHED)
+    ax.line(k, dev, "#1f5fa8", 0.8)
+    ax.markers(k, dev, "o", "#1f5fa8", 2.0)
+    ax.xlabel, ax.ylabel = "cycle", "early / late [s]"
+    ax.title = (f"Each cycle's start against a steady clock: it scatters but never drifts "
+                f"off (wander {clock.wander:.2f}; a valve's own swing would read about "
+                f"{t.size / 15:.0f})")
+
+
 def _mean_cycle(ax: _Panel, shape, linear: bool = True):
     y = np.asarray(shape.pv_cycle, dtype=float)
     n = y.size
@@ -741,8 +759,11 @@ def loop_svg(result, prefix: str, *, zoom_cycles: float = 4.0, title: str | None
     else:
         ax_p.blank("no phase plot (no mean cycle)")
 
+    clock = diag.clock if diag is not None else None
     if bres is not None and np.asarray(bres.bi_per_cycle).size:
         _bi_per_cycle(ax_b, bres)
+    elif clock is not None and clock.keeps_clock:
+        _clock_wander(ax_b, clock)
     elif shape is not None:
         _mean_cycle(ax_b, shape, linear=result.verdict == "linear-oscillation")
     elif diag is not None:
