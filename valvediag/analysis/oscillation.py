@@ -627,6 +627,17 @@ class PhaseWander:
                 "wander": r(self.wander, 3), "jitter_s": r(self.jitter, 4),
                 "timing_noise_s": r(self.timing_noise, 4)}
 
+    def departures(self) -> np.ndarray:
+        """Each crossing's time less the best steady clock's (least squares) [s].
+
+        Empty where fewer than three crossings were read.
+        """
+        t = np.asarray(self.times, dtype=float)
+        if t.size < 3:
+            return np.zeros(0)
+        k = np.arange(t.size)
+        return t - np.polyval(np.polyfit(k, t, 1), k)
+
     def plot(self, ax=None):
         """The crossings' departure from the best steady clock against the cycle count.
 
@@ -641,11 +652,9 @@ class PhaseWander:
 
         if ax is None:
             _, ax = plt.subplots(figsize=(9, 3))
-        t = np.asarray(self.times, dtype=float)
-        if t.size >= 3:
-            k = np.arange(t.size)
-            dev = t - np.polyval(np.polyfit(k, t, 1), k)
-            ax.plot(k, dev, ".-", lw=0.6, ms=3, color="C0")
+        dev = self.departures()
+        if dev.size:
+            ax.plot(np.arange(dev.size), dev, ".-", lw=0.6, ms=3, color="C0")
             ax.axhline(0.0, color="0.5", lw=0.6)
         ax.set_xlabel("cycle")
         ax.set_ylabel("crossing minus steady clock [s]")

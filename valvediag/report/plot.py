@@ -615,19 +615,18 @@ def _cycle_durations(ax: _Panel, diag):
 
 def _clock_wander(ax: _Panel, clock):
     """The swing's upward crossings against the best steady clock, cycle by cycle."""
-    t = np.asarray(clock.times, dtype=float)
-    if t.size < 3:
+    dev = clock.departures()
+    if not dev.size:
         ax.blank("no crossings")
         return
-    k = np.arange(t.size, dtype=float)
-    dev = t - np.polyval(np.polyfit(k, t, 1), k)
+    k = np.arange(dev.size, dtype=float)
     ax.hline(0.0, _grey(0.6), 1.0, dash=_DASHED)
     ax.line(k, dev, "#1f5fa8", 0.8)
     ax.markers(k, dev, "o", "#1f5fa8", 2.0)
     ax.xlabel, ax.ylabel = "cycle", "early / late [s]"
     ax.title = (f"Each cycle's start against a steady clock: it scatters but never drifts "
                 f"off (wander {clock.wander:.2f}; a valve's own swing would read about "
-                f"{t.size / 15:.0f})")
+                f"{dev.size / 15:.0f})")
 
 
 def _mean_cycle(ax: _Panel, shape, linear: bool = True):
