@@ -531,6 +531,31 @@ def test_a_sticky_flow_cycle_whose_band_is_most_of_the_ops_swing_is_stiction(h, 
     assert s.gain > 0.6 and s.S == pytest.approx(S, rel=0.3)
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_sticky_valve_behind_a_slow_lag_whose_pv_swings_against_its_op_is_stiction(seed):
+    from valvediag.analysis.oscillation import detect_oscillation
+
+    # a cooler's temperature (tau 62 s, dead time 11.5 s) behind a valve that
+    # sticks over most of the OP's swing: the PV rises for half a period after
+    # each slip, so at lag zero it swings against the triangular OP though
+    # the process gain is positive, and the best linear fit is that anti-phase
+    # line with no dynamics. Its dynamics alone set the sticky valve's budget
+    # before, and a sticky valve with the process's lag could not be fitted
+    # (the synthetic plant's sticky temperature and pressure loops read
+    # 'linear' this way)
+    h, sigma, kc, n = 1.0, 0.03, 0.95, 4 * 3600
+    sim = simulate_loop(kc=kc, ti=54.0, sample_time=h, n_samples=n, sp=50.0,
+                        process="self-regulating", tau=62.0, dead_time=11.5, valve="kano",
+                        valve_params={"S": 4.9, "J": 3.3}, sp_step=1.0, sp_step_time=60.0,
+                        noise_std=sigma, valve_noise_band=6 * kc * sigma, seed=seed)
+    pv, op = sim.pv[3600:], sim.op[3600:]
+    assert np.corrcoef(pv, op)[0, 1] < -0.5
+    s = valve_signature(pv, op, h, process="self-regulating",
+                        period=detect_oscillation(pv, h).period)
+    assert s.verdict == "stiction", s.reason
+    assert s.gain > 0.6 and s.S == pytest.approx(4.9, rel=0.3)
+
+
 @pytest.mark.parametrize("h", [5.0, 2.0])
 @pytest.mark.parametrize("shape", ["sine", "clipped"])
 def test_a_healthy_flow_loop_under_a_load_at_a_sticky_cycles_period_is_linear(h, shape):

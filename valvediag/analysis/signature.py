@@ -371,7 +371,12 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     apart. The dynamics are first chosen with a linear valve; the nonlinear
     valves are then fitted with dynamics no slower than those (a dead band
     delays the response like a lag does, and the comparison must not credit
-    the valve with the process's lag).
+    the valve with the process's lag), or than those of the best linear
+    valve whose gain has the loop's sense (:func:`loop_sense`, from the
+    controller's answer to the PV's noise). Behind a lag a sticky valve's
+    PV swings against its triangular OP, and the best linear fit is that
+    anti-phase line with no dynamics; where the OP does not answer the
+    noise, the sense is unknown and that budget alone stands.
 
     The stick band ``S`` is searched on a geometric grid from half the OP's
     noise band (or :data:`_LEAST_BAND` of its range, where the OP shows less
@@ -480,8 +485,18 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     r2_lin = 1.0 - tel[il] / scorer.var_test
     # 2. nonlinear valves with dynamics no slower than the linear valve's
     # (a dead band adds a delay of its own: the nonlinear valve's dynamics may
-    # not delay more, on average, than the linear valve's)
-    budget = 2.0 * (d_lin * h + tau_lin) + 2.0 * h
+    # not delay more, on average, than the linear valve's). The linear valve
+    # whose gain has the loop's sense (read from the controller's answer to
+    # the PV's noise) sets the budget too: behind a lag a sticky valve's
+    # cycle turns the PV half a period against a triangular OP, and the best
+    # linear fit is then an anti-phase one with no dynamics at all
+    lag_lin = d_lin * h + tau_lin
+    sense = loop_sense(pv, op)
+    right = np.flatnonzero(np.sign(bl) == sense) if sense != 0 else np.zeros(0, int)
+    if right.size:
+        d_s, tau_s = combos[int(right[np.argmin(trl[right])])]
+        lag_lin = max(lag_lin, d_s * h + tau_s)
+    budget = 2.0 * lag_lin + 2.0 * h
     # (the coarse stage looks at every other dead time and lag, and the linear
     # valve's; the refinement below looks between them)
     pairs = [(d, t) for d in sorted(set(delays[::2]) | {d_lin})
