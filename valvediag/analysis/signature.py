@@ -256,19 +256,30 @@ def _hats(N: int, knots: int) -> np.ndarray:
 
 
 def _dynamics(V: np.ndarray, delays, lags, h: float) -> tuple[np.ndarray, list]:
-    """Every row of ``V`` through every (dead time, lag) pair: rows x pairs."""
-    out, combos = [], []
-    for d in delays:
-        Vd = V if d == 0 else np.concatenate([np.repeat(V[:, :1], d, axis=1), V[:, :-d]], axis=1)
-        for tau in lags:
-            if tau <= 0:
-                Z = Vd
-            else:
-                a = math.exp(-h / tau)
-                Z = lfilter([1.0 - a], [1.0, -a], Vd - Vd[:, :1], axis=1) + Vd[:, :1]
-            out.append(Z)
-            combos.append((d, tau))
-    return np.stack(out, axis=1), combos        # (rows, pairs, n)
+    """Every row of ``V`` through every (dead time, lag) pair: rows x pairs.
+
+    The pairs run dead time by dead time, lag by lag within each. A dead
+    time is a shift of the lagged rows (the lag starts at rest at the first
+    value, which the shift repeats), so each lag is filtered once."""
+    lagged = {tau: _lagged(V, tau, h) for tau in dict.fromkeys(lags)}
+    out = [_delayed(lagged[tau], d) for d in delays for tau in lags]
+    return np.stack(out, axis=1), [(d, tau) for d in delays for tau in lags]  # (rows, pairs, n)
+
+
+def _lagged(V: np.ndarray, tau: float, h: float) -> np.ndarray:
+    """Each row of ``V`` through a unit-gain first-order lag ``tau`` [s], at rest at its
+    first value."""
+    if tau <= 0:
+        return V
+    a = math.exp(-h / tau)
+    return lfilter([1.0 - a], [1.0, -a], V - V[:, :1], axis=1) + V[:, :1]
+
+
+def _delayed(V: np.ndarray, d: int) -> np.ndarray:
+    """Each row of ``V`` ``d`` samples later, the first value held before it."""
+    if d == 0:
+        return V
+    return np.concatenate([np.repeat(V[:, :1], d, axis=1), V[:, :-d]], axis=1)
 
 
 class _Scorer:
@@ -505,7 +516,8 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     def fit_valves(SS, JJ, pairs):
         V = apply_valve("kano", np.tile(op, (SS.size, 1)), S=SS, J=JJ, noise_band=band)
         TV = target(V)
-        res = [scorer.score(_dynamics(TV, [d], [t], h)[0][:, 0]) for d, t in pairs]
+        lagged = {t: _lagged(TV, t, h) for t in dict.fromkeys(t for _, t in pairs)}
+        res = [scorer.score(_delayed(lagged[t], d)) for d, t in pairs]
         return (V,) + tuple(np.stack([r[i] for r in res], axis=1) for i in range(4))
 
     # a) a coarse valve grid over every (dead time, lag) within the budget:

@@ -33,6 +33,9 @@ __all__ = ["ValveKind", "valve_kind", "kind_window", "KIND_EFFECTS", "KIND_MAX_S
 KIND_EFFECTS = ("lag", "dead_time")
 #: Most samples fitted [-].
 KIND_MAX_SAMPLES = 21_600
+#: Periods fitted (the latest of the record): the size fit's most, without
+#: its sample budget (:data:`~valvediag.workbench.size.SIZE_FIT_SAMPLES`) [-].
+KIND_MAX_CYCLES = 100.0
 #: A record is subsampled no coarser than this many steps per lag: a slip
 #: behind the lag must span samples for the fit to see its shape [-].
 KIND_STEPS_PER_LAG = 8.0
@@ -61,7 +64,8 @@ def kind_window(n: int, sample_time: float, *, period: float = math.nan,
     Notes
     -----
     The window of a size fit (:func:`~valvediag.workbench.size_window`: the
-    latest 100 periods, 120 samples per period), with the step no coarser
+    latest :data:`KIND_MAX_CYCLES` periods, 120 samples per period, without
+    the size fit's sample budget), with the step no coarser
     than ``lag / KIND_STEPS_PER_LAG`` (a slip behind a lag of 2 % of the
     period spans two or three samples at 120 per period, and the comparison
     loses it: measured on a level of 300 s with a 20 s lag, six standard
@@ -72,7 +76,8 @@ def kind_window(n: int, sample_time: float, *, period: float = math.nan,
     always in 6 or 12 hours, so a long span is thinned, not cut.
     """
     h = float(sample_time)
-    a, k = size_window(n, h, period)
+    a, k = size_window(n, h, period, max_cycles=KIND_MAX_CYCLES,
+                       min_cycles=KIND_MAX_CYCLES)
     if math.isfinite(lag) and lag > 0:
         k = max(1, min(k, int(lag / (KIND_STEPS_PER_LAG * h))))
     # the size fit's span kept whole, at a coarser step if it holds too many samples
