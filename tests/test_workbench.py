@@ -661,3 +661,22 @@ def test_a_continuous_pv_gets_no_quantiser():
     q = next(s for s in sug.items if s.effect == "quantisation")
     assert not q.accepted and q.evidence.statistic == 0.0
     assert "not on a grid" in q.evidence.summary
+
+
+@pytest.mark.parametrize("h, period, cycles", [
+    (1.0, 300.0, 50.0),      # 150 samples per period at step 2: the budget cuts to the floor
+    (3.0, 300.0, 60.0),      # 100 samples per period at step 1: 6,000 samples
+    (10.0, 430.0, 100.0),    # 43 samples per period: 100 periods are 4,300 samples
+    (1.0, 60.0, 100.0),      # 60 samples per period: 100 periods are 6,000 samples
+])
+def test_a_size_fit_reads_its_periods_within_a_sample_budget(h, period, cycles):
+    from valvediag.workbench import size_window
+    from valvediag.workbench.kind import KIND_MAX_CYCLES, kind_window
+
+    n = int(86_400 / h)
+    a, k = size_window(n, h, period)
+    assert (n - a) * h / period == pytest.approx(cycles, abs=k * h / period)
+    assert (n - 1 - a) % k == 0                   # the fitted record ends at the last sample
+    # the kind check keeps its periods whatever their samples
+    a, k = kind_window(n, h, period=period)
+    assert (n - a) * h / period == pytest.approx(KIND_MAX_CYCLES, abs=k * h / period)
