@@ -63,7 +63,7 @@ from .trend import pv_op_trend
 
 __all__ = ["ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_events",
            "horch_correlation", "cycle_transitions", "loop_sense", "controller_lag",
-           "SIGNATURE_LIMITS", "SENSE_SKEW"]
+           "held_delay", "SIGNATURE_LIMITS", "SENSE_SKEW"]
 
 #: Decision limits of :func:`valve_signature` (calibrated on the development
 #: set of ``benchmarks/bench_realistic.py``, seed 1).
@@ -262,7 +262,7 @@ def _dynamics(V: np.ndarray, delays, lags, h: float) -> tuple[np.ndarray, list]:
     time is a shift of the lagged rows (the lag starts at rest at the first
     value, which the shift repeats), so each lag is filtered once."""
     lagged = {tau: _lagged(V, tau, h) for tau in dict.fromkeys(lags)}
-    out = [_delayed(lagged[tau], d) for d in delays for tau in lags]
+    out = [held_delay(lagged[tau], d) for d in delays for tau in lags]
     return np.stack(out, axis=1), [(d, tau) for d in delays for tau in lags]  # (rows, pairs, n)
 
 
@@ -275,11 +275,24 @@ def _lagged(V: np.ndarray, tau: float, h: float) -> np.ndarray:
     return lfilter([1.0 - a], [1.0, -a], V - V[:, :1], axis=1) + V[:, :1]
 
 
-def _delayed(V: np.ndarray, d: int) -> np.ndarray:
-    """Each row of ``V`` ``d`` samples later, the first value held before it."""
+def held_delay(x: np.ndarray, d: int) -> np.ndarray:
+    """``x`` delayed by ``d`` samples along its last axis, its first value held before.
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        One signal, or one per row [any unit].
+    d : int
+        Dead time [samples], >= 0.
+
+    Returns
+    -------
+    numpy.ndarray
+        The same shape as ``x``; ``x`` itself when ``d`` is 0.
+    """
     if d == 0:
-        return V
-    return np.concatenate([np.repeat(V[:, :1], d, axis=1), V[:, :-d]], axis=1)
+        return x
+    return np.concatenate([np.repeat(x[..., :1], d, axis=-1), x[..., :-d]], axis=-1)
 
 
 class _Scorer:
@@ -517,7 +530,7 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
         V = apply_valve("kano", np.tile(op, (SS.size, 1)), S=SS, J=JJ, noise_band=band)
         TV = target(V)
         lagged = {t: _lagged(TV, t, h) for t in dict.fromkeys(t for _, t in pairs)}
-        res = [scorer.score(_delayed(lagged[t], d)) for d, t in pairs]
+        res = [scorer.score(held_delay(lagged[t], d)) for d, t in pairs]
         return (V,) + tuple(np.stack([r[i] for r in res], axis=1) for i in range(4))
 
     # a) a coarse valve grid over every (dead time, lag) within the budget:

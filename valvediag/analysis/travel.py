@@ -45,7 +45,7 @@ from scipy.stats import norm, poisson
 
 from ..models.valves import apply_valve
 from .quality import longest_run, most_active_window, stored_points, white_noise_std
-from .signature import NOISE_REVERSAL
+from .signature import NOISE_REVERSAL, held_delay
 
 __all__ = ["ValveTravel", "valve_travel", "TRAVEL_LIMITS"]
 
@@ -271,13 +271,6 @@ def _block_t(x: np.ndarray, blocks: int = 24) -> float:
     means = x[:B * (x.size // B)].reshape(B, -1).mean(axis=1)
     sd = float(np.std(means, ddof=1))
     return float(np.mean(means)) / (sd / math.sqrt(B)) if sd > 0 else math.nan
-
-
-def _delayed(x: np.ndarray, d: int) -> np.ndarray:
-    """``x`` delayed by ``d`` samples along its last axis (the first value held)."""
-    if d == 0:
-        return x
-    return np.concatenate([np.repeat(x[..., :1], d, axis=-1), x[..., :-d]], axis=-1)
 
 
 def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) -> ValveTravel:
@@ -550,7 +543,7 @@ def _valve_fit(mv: np.ndarray, op: np.ndarray, band: float, op_range: float, noi
     ``noise``: the position's white noise, against which the linear fit's error is read."""
     n = mv.size
     burn = max(2, n // 20)
-    lin = [_fit_rms(mv, _delayed(op, d)[None, :], burn) for d in (0, 1)]
+    lin = [_fit_rms(mv, held_delay(op, d)[None, :], burn) for d in (0, 1)]
     r_lin, b_lin = min(lin, key=lambda rb: rb[0][0])
     rms_lin = float(r_lin[0])
     if not valves:
@@ -568,7 +561,7 @@ def _valve_fit(mv: np.ndarray, op: np.ndarray, band: float, op_range: float, noi
         V = _valve_of(family, op, S_values)
         best = None
         for d in (0, 1):
-            res, b = _fit_residuals(mv, _delayed(V, d), burn)
+            res, b = _fit_residuals(mv, held_delay(V, d), burn)
             r = np.sqrt(np.einsum("ij,ij->i", res, res) / res.shape[1])
             k = int(np.argmin(r))
             if best is None or r[k] < best[0]:
