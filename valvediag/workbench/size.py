@@ -338,7 +338,7 @@ def _parsimonious_fit(data, valve: str, effects: tuple, process_type: str):
 
     The model with the optional effect is fitted once, warm-started from the
     simpler fit (its grid also runs from the cold start). A second fit from
-    the cold start alone, the better of the two kept, cost a fifth more
+    the cold start alone, the better of the two kept, cost 28 % more
     time on the sizing benchmark (``benchmarks/bench_sizing.py``: 402 s of
     fitting against 314 s) for sizes about as good: median error of S, J
     and DB 10.9, 22.5 and 9.2 % with it, 10.2, 24.7 and 9.2 % without
