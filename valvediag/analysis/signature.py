@@ -261,9 +261,15 @@ def _dynamics(V: np.ndarray, delays, lags, h: float) -> tuple[np.ndarray, list]:
     The pairs run dead time by dead time, lag by lag within each. A dead
     time is a shift of the lagged rows (the lag starts at rest at the first
     value, which the shift repeats), so each lag is filtered once."""
-    lagged = {tau: _lagged(V, tau, h) for tau in dict.fromkeys(lags)}
-    out = [held_delay(lagged[tau], d) for d in delays for tau in lags]
-    return np.stack(out, axis=1), [(d, tau) for d in delays for tau in lags]  # (rows, pairs, n)
+    pairs = [(d, tau) for d in delays for tau in lags]
+    return np.stack(list(_through(V, pairs, h)), axis=1), pairs        # (rows, pairs, n)
+
+
+def _through(V: np.ndarray, pairs, h: float):
+    """The rows of ``V`` through each (dead time [samples], lag [s]) pair in turn,
+    each lag filtered once."""
+    lagged = {tau: _lagged(V, tau, h) for tau in dict.fromkeys(tau for _, tau in pairs)}
+    return (held_delay(lagged[tau], d) for d, tau in pairs)
 
 
 def _lagged(V: np.ndarray, tau: float, h: float) -> np.ndarray:
@@ -529,8 +535,7 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     def fit_valves(SS, JJ, pairs):
         V = apply_valve("kano", np.tile(op, (SS.size, 1)), S=SS, J=JJ, noise_band=band)
         TV = target(V)
-        lagged = {t: _lagged(TV, t, h) for t in dict.fromkeys(t for _, t in pairs)}
-        res = [scorer.score(held_delay(lagged[t], d)) for d, t in pairs]
+        res = [scorer.score(Z) for Z in _through(TV, pairs, h)]
         return (V,) + tuple(np.stack([r[i] for r in res], axis=1) for i in range(4))
 
     # a) a coarse valve grid over every (dead time, lag) within the budget:
