@@ -195,3 +195,33 @@ def test_short_breaks_are_bridged_and_long_ones_kept():
     assert np.isnan(joined.pv[2000:2010]).all()
     assert np.array_equal(joined.op, aligned.op)
     assert bridge_short_breaks(joined) == (joined, 0)
+
+
+def _triangle(n=20000, period=600, swing=1.8, noise=0.01, seed=0):
+    t = np.arange(n)
+    tri = swing * np.abs(((t / period) % 1) * 2 - 1)
+    return tri + np.random.default_rng(seed).normal(0.0, noise, n)
+
+
+def test_white_noise_is_read_from_every_sample_of_a_raw_record():
+    from valvediag.analysis.quality import white_noise_std
+
+    x = _triangle(noise=0.05)
+    assert white_noise_std(x) == pytest.approx(0.05, rel=0.05)
+
+
+def test_a_record_kept_at_its_corners_alone_reads_no_swing_as_noise():
+    """A swinging door wider than the noise keeps a triangle's turns and
+    nothing else: each stored point differs from its neighbours' line by the
+    swing, which the median read as noise (1.86 on a swing of 1.8)."""
+    from valvediag.analysis.quality import white_noise_std
+    from valvediag.synth.plant import exception_deadband, swinging_door
+
+    x = _triangle(noise=0.01)
+    t = np.arange(x.size, dtype=float)
+    exc = np.flatnonzero(exception_deadband(x, 0.05))
+    keep = exc[swinging_door(x[exc], 0.1, t=exc.astype(float))]
+    assert keep.size < 0.01 * x.size                 # the corners, and hardly more
+    stored = np.interp(t, keep, x[keep])
+    est = white_noise_std(stored)
+    assert 0.0 < est < 0.05 * 1.8
