@@ -32,7 +32,7 @@ test; that change redrew loops in every set once more.
 
 Usage: python benchmarks/bench_realistic.py [--loops N] [--set dev|dev2|heldout|all] [--workers W]
        [--classes C1,C2] [--misses] [--evidence FILE] [--valve-position]
-       [--reverse-acting]
+       [--reverse-acting] [--op-door DEV]
 
 ``--valve-position`` gives the scan each loop's valve position as a
 positioner would report it (``SynthLoop.mv``: the simulated position with
@@ -40,6 +40,16 @@ positioner would report it (``SynthLoop.mv``: the simulated position with
 dead responses have none), through the registry's ``mv`` tag. The loops are
 the same as without it. Without the flag the scan reads PV, OP and SP only,
 as the targets are stated.
+
+``--op-door DEV`` stores every loop's OP as a historian with the OP's
+compression on does: exception at half the deviation, then a swinging door
+at a deviation of ``DEV`` % (a historian's compression deviation is
+commonly a few tenths of a percent of the span), drawn back onto the sample
+grid by straight lines. A limit cycle's OP keeps its turns, and where the
+noise closes the door, a few points between. The loops are otherwise the
+same. The generator stores the OP by exception
+only (0.05-0.2 %), so the targets are stated without it; the flag measures
+how far the verdicts rest on an OP stored point by point.
 
 ``--reverse-acting`` runs every loop a second time upside down: PV and set
 point turned about the middle of the span (``100 - x``), the OP the same.
@@ -89,9 +99,22 @@ def _frames(loop, with_position=False):
     return out
 
 
+def _door(op: np.ndarray, dev: float) -> np.ndarray:
+    """The OP as a historian stores it with compression on: exception at half the
+    deviation ``dev`` [OP unit], then a swinging door at ``dev``, drawn back onto
+    the sample grid by straight lines."""
+    from valvediag.synth.plant import exception_deadband, swinging_door
+
+    t = np.arange(op.size, dtype=float)
+    exc = np.flatnonzero(exception_deadband(op, dev / 2))
+    keep = exc[swinging_door(op[exc], dev, t=exc.astype(float))]
+    return np.interp(t, keep, op[keep])
+
+
 def _work(args):
     klass, i, seed, with_position, *rest = args
     upside_down = bool(rest and rest[0])
+    op_door = float(rest[1]) if len(rest) > 1 else 0.0
     from valvediag.io.registry import LoopSpec
     from valvediag.scan import LoopJob, ScanConfig, analyse_loop
     from valvediag.synth.cases import CLASSES, draw_loop
@@ -101,6 +124,8 @@ def _work(args):
     known = rng.random() < 0.7
     if upside_down:
         loop = dataclasses.replace(loop, pv=100.0 - loop.pv, sp=100.0 - loop.sp)
+    if op_door > 0:
+        loop = dataclasses.replace(loop, op=_door(loop.op, op_door))
     position = with_position and loop.mv is not None
     spec = LoopSpec(loop=loop.name, pv_tag="PV", op_tag="OP", sp_tag="SP",
                     mv_tag="MV" if position else None,
@@ -164,6 +189,10 @@ def main():
     ap.add_argument("--valve-position", action="store_true",
                     help="give the scan each loop's recorded valve position (the registry's "
                          "mv tag) as a positioner reports it")
+    ap.add_argument("--op-door", type=float, default=0.0, metavar="DEV",
+                    help="store every loop's OP by swinging door at a deviation of DEV %% "
+                         "(exception at half of it), as a historian with the OP's compression "
+                         "on does (default 0: the OP as drawn)")
     ap.add_argument("--reverse-acting", action="store_true",
                     help="also run every loop upside down (PV and SP turned about the middle of "
                          "the span, as on a valve that acts the other way) and print the loops "
@@ -177,7 +206,7 @@ def main():
     names = list(SETS) if args.set == "all" else [args.set]
     print(f"valvediag realistic benchmark on {os.cpu_count()} cores")
     for name in names:
-        jobs = [(k, i, SETS[name], args.valve_position) for k in classes
+        jobs = [(k, i, SETS[name], args.valve_position, False, args.op_door) for k in classes
                 for i in range(args.loops)]
         t0 = time.perf_counter()
         with ProcessPoolExecutor(max_workers=max(1, args.workers)) as ex:
@@ -185,11 +214,13 @@ def main():
         # the held-out set's misses are not printed: looking at them is tuning on them
         details = name != "heldout"
         with_mv = ", valve position recorded" if args.valve_position else ""
+        if args.op_door:
+            with_mv += f", OP stored by swinging door at {args.op_door:g} %"
         _report(rows, f"{name} set (seed {SETS[name]}{with_mv}), "
                       f"{time.perf_counter() - t0:.0f} s wall", details)
         if args.reverse_acting:
             with ProcessPoolExecutor(max_workers=max(1, args.workers)) as ex:
-                down = list(ex.map(_work, [(*j, True) for j in jobs], chunksize=2))
+                down = list(ex.map(_work, [(*j[:4], True, *j[5:]) for j in jobs], chunksize=2))
             moved = [(r, d) for r, d in zip(rows, down) if r["verdict"] != d["verdict"]]
             print(f"upside down (a reverse-acting loop): {len(moved)} of {len(rows)} verdicts "
                   "differ")

@@ -225,3 +225,22 @@ def test_a_record_kept_at_its_corners_alone_reads_no_swing_as_noise():
     stored = np.interp(t, keep, x[keep])
     est = white_noise_std(stored)
     assert 0.0 < est < 0.05 * 1.8
+
+
+def test_the_stored_resolution_of_a_swinging_door_record_is_about_its_deviation():
+    """Noise of a third of the door's deviation closes the door now and then on
+    a triangle's ramps: the turns dominate what the median reads, the low
+    percentile reads the deviation."""
+    from valvediag.analysis.quality import stored_resolution, white_noise_std
+    from valvediag.synth.plant import exception_deadband, swinging_door
+
+    dev = 0.1
+    x = _triangle(period=200, noise=0.03)
+    t = np.arange(x.size, dtype=float)
+    exc = np.flatnonzero(exception_deadband(x, dev / 2))
+    keep = exc[swinging_door(x[exc], dev, t=exc.astype(float))]
+    stored = np.interp(t, keep, x[keep])
+    assert white_noise_std(stored) > 10 * dev                # the turns, read as noise
+    assert 0.3 * dev < stored_resolution(stored) < 2.0 * dev
+    # no noise estimate: on a raw record it reads a tenth of the noise
+    assert stored_resolution(_triangle(noise=0.05)) < 0.2 * 0.05
