@@ -99,18 +99,6 @@ def _frames(loop, with_position=False):
     return out
 
 
-def _door(op: np.ndarray, dev: float) -> np.ndarray:
-    """The OP as a historian stores it with compression on: exception at half the
-    deviation ``dev`` [OP unit], then a swinging door at ``dev``, drawn back onto
-    the sample grid by straight lines."""
-    from valvediag.synth.plant import exception_deadband, swinging_door
-
-    t = np.arange(op.size, dtype=float)
-    exc = np.flatnonzero(exception_deadband(op, dev / 2))
-    keep = exc[swinging_door(op[exc], dev, t=exc.astype(float))]
-    return np.interp(t, keep, op[keep])
-
-
 def _work(args):
     klass, i, seed, with_position, *rest = args
     upside_down = bool(rest and rest[0])
@@ -118,6 +106,7 @@ def _work(args):
     from valvediag.io.registry import LoopSpec
     from valvediag.scan import LoopJob, ScanConfig, analyse_loop
     from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.plant import historian_record
 
     rng = np.random.default_rng([seed, list(CLASSES).index(klass), i])
     loop = draw_loop(klass, rng, name=f"{klass}-{i:02d}")
@@ -125,7 +114,7 @@ def _work(args):
     if upside_down:
         loop = dataclasses.replace(loop, pv=100.0 - loop.pv, sp=100.0 - loop.sp)
     if op_door > 0:
-        loop = dataclasses.replace(loop, op=_door(loop.op, op_door))
+        loop = dataclasses.replace(loop, op=historian_record(loop.op, op_door))
     position = with_position and loop.mv is not None
     spec = LoopSpec(loop=loop.name, pv_tag="PV", op_tag="OP", sp_tag="SP",
                     mv_tag="MV" if position else None,

@@ -214,15 +214,11 @@ def test_a_record_kept_at_its_corners_alone_reads_no_swing_as_noise():
     """A swinging door wider than the noise keeps a triangle's turns and
     nothing else: each stored point differs from its neighbours' line by the
     swing, which the median read as noise (1.86 on a swing of 1.8)."""
-    from valvediag.analysis.quality import white_noise_std
-    from valvediag.synth.plant import exception_deadband, swinging_door
+    from valvediag.analysis.quality import stored_points, white_noise_std
+    from valvediag.synth.plant import historian_record
 
-    x = _triangle(noise=0.01)
-    t = np.arange(x.size, dtype=float)
-    exc = np.flatnonzero(exception_deadband(x, 0.05))
-    keep = exc[swinging_door(x[exc], 0.1, t=exc.astype(float))]
-    assert keep.size < 0.01 * x.size                 # the corners, and hardly more
-    stored = np.interp(t, keep, x[keep])
+    stored = historian_record(_triangle(noise=0.01), 0.1)
+    assert stored_points(stored).size < 0.01 * stored.size   # the corners, and hardly more
     est = white_noise_std(stored)
     assert 0.0 < est < 0.05 * 1.8
 
@@ -232,14 +228,10 @@ def test_the_stored_resolution_of_a_swinging_door_record_is_about_its_deviation(
     a triangle's ramps: the turns dominate what the median reads, the low
     percentile reads the deviation."""
     from valvediag.analysis.quality import stored_resolution, white_noise_std
-    from valvediag.synth.plant import exception_deadband, swinging_door
+    from valvediag.synth.plant import historian_record
 
     dev = 0.1
-    x = _triangle(period=200, noise=0.03)
-    t = np.arange(x.size, dtype=float)
-    exc = np.flatnonzero(exception_deadband(x, dev / 2))
-    keep = exc[swinging_door(x[exc], dev, t=exc.astype(float))]
-    stored = np.interp(t, keep, x[keep])
+    stored = historian_record(_triangle(period=200, noise=0.03), dev)
     assert white_noise_std(stored) > 10 * dev                # the turns, read as noise
     assert 0.3 * dev < stored_resolution(stored) < 2.0 * dev
     # no noise estimate: on a raw record it reads a tenth of the noise

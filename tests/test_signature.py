@@ -573,17 +573,6 @@ def test_a_healthy_flow_loop_under_a_load_at_a_sticky_cycles_period_is_linear(h,
     assert s.verdict == "linear", s.reason
 
 
-def _door(x, dev):
-    """``x`` as a historian stores it with compression on: exception at half the
-    deviation, a swinging door at ``dev``, read back by straight lines."""
-    from valvediag.synth.plant import exception_deadband, swinging_door
-
-    t = np.arange(x.size, dtype=float)
-    exc = np.flatnonzero(exception_deadband(x, dev / 2))
-    keep = exc[swinging_door(x[exc], dev, t=exc.astype(float))]
-    return np.interp(t, keep, x[keep])
-
-
 def test_a_sticky_flow_valve_is_read_through_an_op_kept_at_its_corners():
     """A swinging door of 0.1 % keeps 5 % of the OP's samples, most of them
     the turns of its cycle: their differences from their neighbours' lines
@@ -592,12 +581,13 @@ def test_a_sticky_flow_valve_is_read_through_an_op_kept_at_its_corners():
     stored resolution."""
     from valvediag import simulate_loop
     from valvediag.analysis.quality import stored_points
+    from valvediag.synth.plant import historian_record
 
     sim = simulate_loop(sample_time=0.5, n_samples=28800, sp=50.0, process="self-regulating",
                         tau=10.0, kc=0.8, ti=8.0, dead_time=2.0, valve="kano",
                         valve_params={"S": 3.0, "J": 2.0}, sp_step=1.0, sp_step_time=60.0,
                         noise_std=0.02, valve_noise_band=6 * 0.8 * 0.02, seed=4)
-    pv, op = sim.pv[3600::2], _door(sim.op[3600::2], 0.1)
+    pv, op = sim.pv[3600::2], historian_record(sim.op[3600::2], 0.1)
     assert stored_points(op).size < 0.1 * op.size
     d = classify_loop(pv, op, np.full(pv.size, 50.0), sample_time=1.0,
                       process_type="self-regulating")
@@ -609,6 +599,7 @@ def test_a_square_load_through_an_op_kept_at_its_corners_is_no_valve_fault():
     at its stored resolution, the OP is seen to move, and a linear valve
     explains the PV (where the OP 'hardly moved', the valve was not read)."""
     from valvediag import simulate_loop
+    from valvediag.synth.plant import historian_record
 
     n = 28800
     t = np.arange(n) * 0.5
@@ -616,7 +607,7 @@ def test_a_square_load_through_an_op_kept_at_its_corners_is_no_valve_fault():
                         tau=10.0, kc=0.5, ti=10.0, dead_time=1.0, valve="linear",
                         load_profile=2.0 * np.sign(np.sin(2 * np.pi * t / 120.0)),
                         noise_std=0.03, seed=2)
-    pv, op = sim.pv[3600::2], _door(sim.op[3600::2], 0.1)
+    pv, op = sim.pv[3600::2], historian_record(sim.op[3600::2], 0.1)
     d = classify_loop(pv, op, np.full(pv.size, 50.0), sample_time=1.0,
                       process_type="self-regulating")
     assert d.verdict == "linear-oscillation" and "valve follows the OP" in d.reason, d.reason

@@ -439,8 +439,9 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
       most twice its stored resolution
       (:func:`~valvediag.analysis.quality.stored_resolution`, about the
       door's deviation), the band the fitted actuator ignores: the drawn OP
-      lies within the door's deviation of the controller's, so a reversal
-      within twice it may be the historian's. On the realistic benchmark's
+      lies mostly within the door's deviation of the controller's (within
+      twice it everywhere), so a reversal within about twice it may be the
+      historian's. On the realistic benchmark's
       development set with the OP stored by a swinging door of 0.1 %
       (``benchmarks/bench_realistic.py --op-door 0.1``), 8 of 8 sticky flow
       cycles read ``stiction`` where 3 did; at 0.3 %, 4 where 2 did. A

@@ -50,7 +50,7 @@ import numpy as np
 
 from ..analysis.quality import stored_points, white_noise_std
 from ..models.closedloop import simulate_loop
-from .plant import cycle_stats, exception_deadband, swinging_door
+from .plant import cycle_stats, exception_deadband, historian_record
 
 __all__ = ["CLASSES", "SynthLoop", "draw_loop", "loop_set", "alternating_steps"]
 
@@ -187,9 +187,7 @@ def _record(pv, op, sp, rng, compressed: bool, sigma: float):
         t = np.arange(pv.size, dtype=float)
         amp = 0.5 * (np.percentile(pv, 99) - np.percentile(pv, 1))
         dev = max(rng.uniform(0.01, 0.03) * amp, 2.0 * sigma, 1e-6)
-        exc = np.flatnonzero(exception_deadband(pv, dev / 2))
-        keep = exc[swinging_door(pv[exc], dev, t=exc.astype(float))]
-        pv = np.interp(t, keep, pv[keep])
+        pv = historian_record(pv, dev)
         kop = np.flatnonzero(exception_deadband(op, rng.uniform(0.05, 0.2)))
         op = np.interp(t, kop, op[kop])
     return pv, op, sp

@@ -42,7 +42,8 @@ import polars as pl
 from ..models.closedloop import simulate_loop
 
 __all__ = [
-    "synth_plant", "SynthPlant", "swinging_door", "exception_deadband", "cycle_stats",
+    "synth_plant", "SynthPlant", "swinging_door", "exception_deadband", "historian_record",
+    "cycle_stats",
     "CATEGORY_SHARES", "CATEGORY_VERDICT", "TRUTH_VERDICTS", "DIGITAL_STATES", "STATUS_FLAGS",
     "FORMATS", "LOOPS_COLUMNS", "TRUTH_COLUMNS", "EXPORT_COLUMNS",
 ]
@@ -248,7 +249,34 @@ def swinging_door(x, deviation: float, max_interval: float | None = None, t=None
     return _sdt_kernel(ta, xa, max(float(deviation), 0.0), mg)
 
 
+def historian_record(x, deviation: float) -> np.ndarray:
+    """A record as a historian with compression on stores it and reads it back.
+
+    Exception reporting at half the deviation (:func:`exception_deadband`),
+    then a swinging door at the deviation (:func:`swinging_door`), then
+    straight lines between the stored points on the original grid.
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+        Snapshot values on a uniform grid [unit of x].
+    deviation : float
+        Compression deviation [unit of x].
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+        The record read back by linear interpolation [unit of x].
+    """
+    x = np.asarray(x, dtype=float)
+    t = np.arange(x.size, dtype=float)
+    exc = np.flatnonzero(exception_deadband(x, deviation / 2))
+    keep = exc[swinging_door(x[exc], deviation, t=exc.astype(float))]
+    return np.interp(t, keep, x[keep])
+
+
 # ------------------------------------------------------------ cycle analysis
+
 
 def cycle_stats(x, h):
     """Period, amplitude and regularity of a simulated record's oscillation.
