@@ -236,3 +236,32 @@ def test_the_stored_resolution_of_a_swinging_door_record_is_about_its_deviation(
     assert 0.3 * dev < stored_resolution(stored) < 2.0 * dev
     # no noise estimate: on a raw record it reads a tenth of the noise
     assert stored_resolution(_triangle(noise=0.05)) < 0.2 * 0.05
+
+
+
+def test_a_sparse_record_is_read_at_its_stored_resolution():
+    """An OP that creeps 1 % over 300 s and back, with white noise of 0.03,
+    stored by a swinging door of 0.1 %: the noise closes the door now and
+    then, but most stored points are the ends of the creeps, and their
+    differences from their neighbours' lines read as a noise ten times the
+    door. Read at its stored resolution, the noise is below a third of the
+    door's deviation (a band of six of it about the door's deviation, the
+    finest move the record resolves; it reads a quarter to a half of the
+    noise drawn on seeds 3-7); a raw record's is what white_noise_std
+    reads."""
+    from valvediag.analysis.quality import (SPARSE_SPACING, resolved_noise_std,
+                                            stored_points, white_noise_std)
+    from valvediag.synth.plant import historian_record
+
+    rng = np.random.default_rng(3)
+    creep = np.concatenate([40.0 + np.linspace(0.0, 1.0, 300)[::(-1) ** k] for k in range(10)])
+    raw = creep + rng.normal(0.0, 0.03, creep.size)
+    kept = historian_record(raw, 0.1)
+    assert np.median(np.diff(stored_points(kept))) >= SPARSE_SPACING
+    assert white_noise_std(kept) > 0.5
+    assert 0.0 < resolved_noise_std(kept) < 0.1 / 3
+    assert resolved_noise_std(raw) == white_noise_std(raw)
+    # a record the noise keeps closing the door on is not sparse, and its
+    # noise is read as before
+    noisy = historian_record(creep + rng.normal(0.0, 0.2, creep.size), 0.1)
+    assert resolved_noise_std(noisy) == white_noise_std(noisy) > 0.1

@@ -611,3 +611,21 @@ def test_a_square_load_through_an_op_kept_at_its_corners_is_no_valve_fault():
     d = classify_loop(pv, op, np.full(pv.size, 50.0), sample_time=1.0,
                       process_type="self-regulating")
     assert d.verdict == "linear-oscillation" and "valve follows the OP" in d.reason, d.reason
+
+
+def test_a_sticky_valves_creeps_are_read_through_an_op_stored_by_swinging_door():
+    """The slips of ``_slip_record`` with the OP stored by a swinging door of
+    0.1 %: the door keeps the ends of the creeps and little else, and their
+    differences from their neighbours' lines read as a noise band (0.46 x 6)
+    larger than the 1 % creep, so no slip was counted and the loop read
+    'insufficient-data'. Read at its stored resolution, the creeps count."""
+    from valvediag.analysis.quality import resolved_noise_std, white_noise_std
+    from valvediag.synth.plant import historian_record
+
+    pv, op, sp = _slip_record(n_events=6)
+    op = historian_record(op, 0.1)
+    assert 6 * white_noise_std(op) > 1.0 > 6 * resolved_noise_std(op)
+    e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp)
+    assert e.found and e.kind == "stiction" and e.slips >= 5, e.reason
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="self-regulating")
+    assert d.verdict == "stiction" and "stick-slip events" in d.reason, d.reason

@@ -44,7 +44,8 @@ from scipy.signal import find_peaks
 from scipy.stats import norm, poisson
 
 from ..models.valves import apply_valve
-from .quality import longest_run, most_active_window, stored_points, white_noise_std
+from .quality import (longest_run, most_active_window, resolved_noise_std, stored_points,
+                      white_noise_std)
 from .signature import NOISE_REVERSAL, held_delay
 
 __all__ = ["ValveTravel", "valve_travel", "TRAVEL_LIMITS"]
@@ -450,7 +451,7 @@ def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) 
     # the fit, on the window in which the OP travels furthest
     start = most_active_window(op, max_samples)
     w_mv, w_op = mv[start:start + max_samples], op[start:start + max_samples]
-    band = NOISE_REVERSAL * white_noise_std(w_op)
+    band = NOISE_REVERSAL * resolved_noise_std(w_op)
     lo, hi = np.percentile(w_op, [1.0, 99.0])
     w_range = float(hi - lo)
     w_lo, w_hi = np.percentile(w_mv, [1.0, 99.0])
@@ -645,7 +646,7 @@ def _jumps_at(mv: np.ndarray, op: np.ndarray, noise: float, gain: float, L: int)
                  & (np.abs(a2 - b1) >= 0.5 * np.abs(dm)))
         # a loose valve that follows the OP's noisy edge moves in steps of that
         # noise: a slip read on means must stand beyond the OP's noise band
-        floor = abs(gain) * NOISE_REVERSAL * white_noise_std(op)
+        floor = abs(gain) * NOISE_REVERSAL * resolved_noise_std(op)
     # the position's own move: what it moved beyond following the OP (a valve
     # that follows moves by the OP's move, and a jump must stand out of that)
     own = dm - gain * do
