@@ -313,7 +313,10 @@ def valve_travel(mv, op, sample_time: float, *, max_samples: int = MAX_SAMPLES) 
     OP's noise at its edge (Kano's valve with ``J = 0`` sticks at each of the
     noise's reversals); they need an OP that travels beyond four noise bands
     (otherwise only the linear fit is made). The first 5 % of the window is
-    not scored (the valve's starting state is not known).
+    not scored (the valve's starting state is not known). The OP's noise is
+    read by :func:`~valvediag.analysis.quality.resolved_noise_std`: an OP
+    stored by a swinging door with its stored points 20 or more samples
+    apart is read at its stored resolution, not at its turns.
 
     The jumps are counted over the whole stretch. A jump is a move of the
     position beyond :data:`TRAVEL_LIMITS`'s ``jump_z`` standard deviations
