@@ -250,7 +250,7 @@ def test_a_sparse_record_is_read_at_its_stored_resolution():
     noise drawn on seeds 3-7); a raw record's is what white_noise_std
     reads."""
     from valvediag.analysis.quality import (SPARSE_SPACING, resolved_noise_std,
-                                            stored_points, white_noise_std)
+                                            stored_points, stored_resolution, white_noise_std)
     from valvediag.synth.plant import historian_record
 
     rng = np.random.default_rng(3)
@@ -265,3 +265,13 @@ def test_a_sparse_record_is_read_at_its_stored_resolution():
     # noise is read as before
     noisy = historian_record(creep + rng.normal(0.0, 0.2, creep.size), 0.1)
     assert resolved_noise_std(noisy) == white_noise_std(noisy) > 0.1
+    # a fast cycle (30 samples) kept at its turns, four stored points a
+    # period and five or six samples apart: sparse only given its period
+    t = np.arange(3000)
+    fast = historian_record(50.0 + 4.0 / np.pi * np.arcsin(np.sin(2 * np.pi * t / 30.0))
+                            + rng.normal(0.0, 0.01, t.size), 0.1)
+    assert np.median(np.diff(stored_points(fast))) < SPARSE_SPACING
+    assert resolved_noise_std(fast) == white_noise_std(fast) > 0.2
+    bounded = resolved_noise_std(fast, period=30.0)
+    assert bounded == pytest.approx(stored_resolution(fast) / 3) and \
+        bounded < white_noise_std(fast) / 4

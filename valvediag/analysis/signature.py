@@ -104,10 +104,6 @@ _SWING_SHARES = np.geomspace(0.4, 1.0, 19)
 _LEAST_BAND = 0.02
 _DELAYS = (0, 1, 2, 4, 8, 16)
 _BLOCKS = 24
-#: An OP that keeps fewer stored points than this a period is kept at its
-#: cycle's turns: its noise band is at most twice its stored resolution
-#: (:func:`~valvediag.analysis.quality.stored_resolution`).
-CORNERS_PER_PERIOD = 12
 
 
 @dataclass(frozen=True)
@@ -432,8 +428,9 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
 
     * the valve hardly moves (OP range below a few noise bands): ``'unknown'``.
       An OP stored by swinging door with fewer than
-      :data:`CORNERS_PER_PERIOD` stored points a period is kept at its
-      cycle's turns, whose differences from their neighbours' lines
+      :data:`~valvediag.analysis.quality.CORNERS_PER_PERIOD` stored points
+      a period is kept at its cycle's turns, whose differences from their
+      neighbours' lines
       :func:`~valvediag.analysis.quality.white_noise_std` would read as
       noise (a band of 2.8 on a swing of 3.5); its noise band is then at
       most twice its stored resolution
@@ -493,9 +490,7 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     # an OP kept at its cycle's turns, or with its stored points far apart:
     # their differences from their neighbours' lines are the swing, not
     # noise (see Notes)
-    turns = (math.isfinite(period) and period > 0
-             and stored_points(op).size < CORNERS_PER_PERIOD * n * h / period)
-    op_noise = resolved_noise_std(op, sparse=True if turns else None)
+    op_noise = resolved_noise_std(op, period=period / h)
     pv_noise = white_noise_std(pv)
     band = NOISE_REVERSAL * op_noise
     lo, hi = np.percentile(op, [1, 99])
