@@ -596,7 +596,8 @@ def resolved_noise_std(x, *, period: float | None = None) -> float:
     sparse = knots.size > 1 and float(np.median(np.diff(knots))) >= SPARSE_SPACING
     if period is not None and math.isfinite(period) and period > 0:
         # a cycle kept at its turns: a swinging door wider than the noise
-        # keeps two or three points a period, a dozen or more otherwise
+        # keeps two to four points a period, where a noise that closes it
+        # keeps many
         sparse = sparse or knots.size < CORNERS_PER_PERIOD * y.size / period
     if sparse:
         noise = min(noise, SPARSE_NOISE_SHARE * _resolution_of(r))
