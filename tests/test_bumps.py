@@ -5,7 +5,8 @@ matplotlib.use("Agg")
 import numpy as np
 import pytest
 
-from valvediag.analysis.bumps import BUMP_Z, MIN_BUMPS_AGAINST, setpoint_bumps
+from valvediag.analysis.bumps import (BUMP_Z, MIN_BUMPS_AGAINST, SCREEN_SHIFT_MAX, SCREEN_STEPS,
+                                     setpoint_bumps, setpoint_process_screen)
 from valvediag.analysis.classify import classify_loop
 from valvediag.models.closedloop import simulate_loop
 from valvediag.synth.cases import alternating_steps
@@ -166,3 +167,69 @@ def test_bad_input_is_named():
     with pytest.raises(ValueError, match="sample_time"):
         setpoint_bumps(pv, op, sp, 0.0)
     assert "only 10 samples" in setpoint_bumps(pv[:10], op[:10], sp[:10], h).reason
+
+
+def pi_flow(seed, h=2.0, n=21_600, kc=0.5, gain=1.0):
+    """A day of a PI flow loop under a wandering load, with set-point steps."""
+    rng = np.random.default_rng(seed)
+    sp = alternating_steps(rng, n, every_s=(1500.0, 3000.0), size=(2.0, 4.0), sample_time=h)
+    t = np.arange(n) * h
+    knots = np.arange(0.0, n * h + 901.0, 900.0)
+    load = np.interp(t, knots, np.cumsum(rng.normal(0.0, 0.3, knots.size)))
+    r = simulate_loop(kc=kc, ti=20.0, sample_time=h, n_samples=n, process="self-regulating",
+                      process_gain=gain, tau=10.0, valve="linear", sp=50.0, load=0.0,
+                      load_profile=load, sp_profile=sp, noise_std=0.3, seed=seed)
+    return r.pv, r.op, r.sp, h
+
+
+@pytest.mark.parametrize("sense", [1.0, -1.0])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_op_comes_back_after_a_levels_setpoint_steps(seed, sense):
+    pv, op, sp, h = p_only_level(seed, "linear", sense=sense)
+    s = setpoint_process_screen(pv, op, sp, h)
+    assert s.steps >= 30
+    assert s.process == "integrating", s.reason
+    assert abs(s.shift_over_kick) + 2 * s.standard_error < SCREEN_SHIFT_MAX
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_sticky_levels_op_settles_anywhere_in_its_band_and_reads_no_flow(seed):
+    # the OP rests wherever in the stick band the valve caught: the shifts
+    # scatter, which may leave the process unnamed, never a flow's
+    pv, op, sp, h = p_only_level(seed, "kano", {"S": 4.0, "J": 2.0})
+    s = setpoint_process_screen(pv, op, sp, h)
+    assert s.steps >= 30
+    assert s.process != "self-regulating", s.reason
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("kc,gain", [(0.5, 1.0), (1.0, 0.5), (-0.3, -2.0)])
+def test_the_op_settles_away_after_a_flows_setpoint_steps(seed, kc, gain):
+    pv, op, sp, h = pi_flow(seed, kc=kc, gain=gain)
+    s = setpoint_process_screen(pv, op, sp, h)
+    assert s.process == "self-regulating", s.reason
+    # the lasting shift over the kick is the loop gain's reciprocal, 1 / (K Kc)
+    assert s.shift_over_kick == pytest.approx(1.0 / (kc * gain), rel=0.25)
+
+
+def test_too_few_setpoint_steps_name_no_process():
+    pv, op, sp, h = p_only_level(0, "linear")
+    k = np.flatnonzero(np.diff(sp))[SCREEN_STEPS - 1] + 1
+    s = setpoint_process_screen(pv[:k], op[:k], sp[:k], h)
+    assert s.steps == SCREEN_STEPS - 1
+    assert s.process == "unknown" and "need" in s.reason
+    with pytest.raises(ValueError, match="one length"):
+        setpoint_process_screen(pv, op[:-1], sp, h)
+
+
+def test_a_sticky_level_of_unknown_type_has_its_kinks_read_after_the_screen():
+    pv, op, sp, h = p_only_level(2, "kano", {"S": 4.0, "J": 2.0})
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="unknown")
+    assert d.evidence["setpoint_screen"]["process"] == "integrating"
+    assert d.verdict in ("stiction", "undecided"), d.reason
+    assert "data test: the OP after the set-point steps" in d.reason
+    # a healthy flow of unknown type is read as self-regulating, and keeps its valve
+    pv, op, sp, h = pi_flow(0)
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="unknown")
+    assert d.evidence["setpoint_screen"]["process"] == "self-regulating"
+    assert d.verdict == "no-oscillation", d.reason

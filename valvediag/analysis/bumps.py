@@ -38,8 +38,9 @@ from .quality import white_noise_std
 from .signature import loop_sense
 from .trend import pv_op_trend
 
-__all__ = ["SetPointBumps", "setpoint_bumps", "kinks_over_following", "BUMP_HALF_WINDOW_S",
-           "BUMP_Z", "MIN_BUMPS_AGAINST", "SLIP_OVER_FOLLOWING"]
+__all__ = ["SetPointBumps", "setpoint_bumps", "kinks_over_following", "SetPointScreen",
+           "setpoint_process_screen", "BUMP_HALF_WINDOW_S", "BUMP_Z", "MIN_BUMPS_AGAINST",
+           "SLIP_OVER_FOLLOWING", "SCREEN_STEPS", "SCREEN_SHIFT_MAX", "SCREEN_SIDE"]
 
 #: Stretch read either side of a set-point step [s], cut short at the next
 #: and the last step.
@@ -52,6 +53,16 @@ MIN_BUMPS_AGAINST = 2
 MIN_SIDE = 8
 #: Most steps read (the first ones of the record).
 MAX_STEPS = 500
+#: Fewest set-point steps for :func:`setpoint_process_screen` to name a process.
+SCREEN_STEPS = 5
+#: Upper bound (two standard errors above the estimate) of the OP's lasting
+#: shift over its kick, per unit of set-point move, below which the process
+#: integrates. A self-regulating loop reads ``1 / (K Kc)``, its loop gain's
+#: reciprocal: below 0.3 only for a loop gain above about 3.
+SCREEN_SHIFT_MAX = 0.3
+#: Fewest samples either side of a step for the screen: a third of them is
+#: averaged as the settled OP.
+SCREEN_SIDE = 30
 
 
 @dataclass(frozen=True)
@@ -268,6 +279,165 @@ def setpoint_bumps(pv, op, sp, sample_time: float, *, sense: float | None = None
                          against=against, gain=gain, z=z, kick=kick, **base)
 
 
+@dataclass(frozen=True)
+class SetPointScreen:
+    """The process type read from the OP's lasting shift after set-point steps.
+
+    Attributes
+    ----------
+    process : {'integrating', 'self-regulating', 'unknown'}
+    reason : str
+        One sentence.
+    steps : int
+        Set-point steps read.
+    shift_over_kick : float
+        Least-squares OP shift (settled after the step against settled before)
+        per unit set-point move, over the OP's kick per unit set-point move;
+        NaN where nothing was read [-].
+    standard_error : float
+        Its standard error, from the scatter of the steps about the fit [-].
+    dsp, shift, kick : numpy.ndarray
+        Each step's set-point move [PV unit], the OP's lasting shift and its
+        kick [OP unit].
+    """
+
+    process: str
+    reason: str
+    steps: int = 0
+    shift_over_kick: float = math.nan
+    standard_error: float = math.nan
+    dsp: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    shift: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    kick: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+
+    def as_dict(self) -> dict:
+        """The figures as plain types."""
+        return {"process": self.process, "steps": self.steps,
+                "shift_over_kick": round(self.shift_over_kick, 3),
+                "standard_error": round(self.standard_error, 3)}
+
+    def plot(self, ax=None):
+        """The OP's lasting shift and its kick against each set-point move.
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        if ax is None:
+            import matplotlib.pyplot as plt
+            _, ax = plt.subplots()
+        ax.plot(self.dsp, self.kick, "o", mfc="none", label="kick (3 samples)")
+        ax.plot(self.dsp, self.shift, "s", label="lasting shift")
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.set_xlabel("set-point move [PV unit]")
+        ax.set_ylabel("OP move [OP unit]")
+        ax.set_title(f"{self.process}: shift/kick {self.shift_over_kick:.2f} "
+                     f"± {self.standard_error:.2f} ({self.steps} steps)", fontsize=9)
+        ax.legend(fontsize=7)
+        return ax
+
+
+def setpoint_process_screen(pv, op, sp, sample_time: float) -> SetPointScreen:
+    """Read whether a loop's process integrates from its OP after set-point steps.
+
+    Parameters
+    ----------
+    pv, op, sp : array_like, shape (n,)
+        One gap-free stretch of a loop in automatic [PV unit, OP unit, PV
+        unit].
+    sample_time : float
+        [s]
+
+    Returns
+    -------
+    SetPointScreen
+        ``'integrating'`` where the OP comes back after the steps,
+        ``'self-regulating'`` where it settles away in proportion to them.
+
+    Notes
+    -----
+    At steady state a self-regulating process (a flow, a pressure, a
+    temperature) needs a new valve position for a new set point: the OP
+    settles ``dSP / K`` away from where it was. An integrating one (a level)
+    needs the valve that balances the load, whatever the set point: the OP
+    comes back. The controller's proportional action kicks the OP by
+    ``Kc dSP`` at once, in both. Over the isolated set-point steps (at least
+    :data:`SCREEN_SIDE` samples from the neighbouring ones), the OP's
+    lasting shift (the mean of the last third of the stretch after the
+    step against that of the stretch before it) and its kick (three samples
+    after against three before) are fitted against the set-point move
+    through the origin; their ratio is ``1 / (K Kc)`` on a self-regulating
+    loop and 0 on an integrating one. The process integrates where the ratio
+    stands below :data:`SCREEN_SHIFT_MAX` by two standard errors, and
+    regulates itself where it stands above it by two, over at least
+    :data:`SCREEN_STEPS` steps.
+
+    A load that moves between the steps scatters the shifts and widens the
+    error: nothing is named then. It fails where the loop has not settled
+    within two thirds of the stretch after a step (a slow level loop with
+    frequent steps reads a flow's lasting shift), where the controller
+    kicks nothing (set-point weighting zero, or a PV-derivative-only
+    structure: nothing is read), on a self-regulating loop with a loop gain
+    above about 3 (read as neither) and on a sticky valve whose OP settles
+    anywhere in its band (scatter). A cascade's inner loop, whose set point
+    moves at every sample, has no isolated step.
+
+    References
+    ----------
+    .. [1] Åström, K. J., Hägglund, T. (2006). Advanced PID Control. ISA,
+       Research Triangle Park (integrating processes; set-point response).
+    """
+    h = float(sample_time)
+    pv = np.asarray(pv, dtype=float).ravel()
+    op = np.asarray(op, dtype=float).ravel()
+    sp = np.asarray(sp, dtype=float).ravel()
+    if not (pv.size == op.size == sp.size):
+        raise ValueError(f"pv, op and sp must have one length, got {pv.size}, {op.size} and "
+                         f"{sp.size} samples")
+    if not (math.isfinite(h) and h > 0):
+        raise ValueError(f"sample_time must be a positive number of seconds, got {sample_time!r}")
+    noise = white_noise_std(pv) if pv.size >= 2 * SCREEN_SIDE else math.nan
+    if not noise > 0:
+        return SetPointScreen("unknown", "too short or noiseless a PV to find set-point steps")
+    jumps = np.flatnonzero(np.abs(np.diff(sp)) > 3.0 * noise) + 1
+    prev = np.r_[-1, jumps[:-1]]
+    nxt = np.r_[jumps[1:], pv.size]
+    isolated = (jumps - prev - 1 >= SCREEN_SIDE) & (nxt - jumps >= SCREEN_SIDE)
+    k, p, q = jumps[isolated], prev[isolated], nxt[isolated]
+    # settled OP: the last third of the stretch before the step and after it
+    c = np.r_[0.0, np.cumsum(op)]
+    nb, na = (k - p - 1) // 3, (q - k) // 3
+    before = (c[k] - c[k - nb]) / nb
+    after = (c[q] - c[q - na]) / na
+    kick = (c[k + 3] - c[k]) / 3.0 - (c[k] - c[k - 3]) / 3.0
+    dsp, shift = sp[k] - sp[k - 1], after - before
+    good = np.isfinite(dsp) & np.isfinite(shift) & np.isfinite(kick)
+    dsp, shift, kick = dsp[good], shift[good], kick[good]
+    base = dict(steps=int(dsp.size), dsp=dsp, shift=shift, kick=kick)
+    if dsp.size < SCREEN_STEPS:
+        return SetPointScreen("unknown", f"{dsp.size} isolated set-point steps (need "
+                              f"{SCREEN_STEPS})", **base)
+    s2 = float(dsp @ dsp)
+    per_kick = float(dsp @ kick) / s2
+    per_shift = float(dsp @ shift) / s2
+    if not abs(per_kick) > 0:
+        return SetPointScreen("unknown", "the set-point steps kick the OP by nothing", **base)
+    res = shift - per_shift * dsp
+    se = math.sqrt(float(res @ res) / (dsp.size - 1) / s2) / abs(per_kick)
+    ratio = per_shift / per_kick
+    base.update(shift_over_kick=ratio, standard_error=se)
+    what = (f"after {dsp.size} set-point steps the OP's lasting shift is {ratio:.2f} "
+            f"± {se:.2f} of its kick")
+    if ratio + 2.0 * se < SCREEN_SHIFT_MAX:
+        return SetPointScreen("integrating", f"{what}: it comes back, as on a level, whose "
+                              "valve must balance the load whatever the set point", **base)
+    if ratio - 2.0 * se > SCREEN_SHIFT_MAX:
+        return SetPointScreen("self-regulating", f"{what}: it settles away, as a "
+                              "self-regulating process needs a new valve position for a new "
+                              "set point", **base)
+    return SetPointScreen("unknown", f"{what}: neither a level's nor a flow's", **base)
+
+
 #: A slip steps a level's slope by at least this multiple of what the OP's
 #: travel before it makes through the valve's gain read at the set-point steps.
 SLIP_OVER_FOLLOWING = 3.0
@@ -303,7 +473,10 @@ def kinks_over_following(kinks, bumps: SetPointBumps) -> float:
     it stuck, which the stretch before the kink holds only in part: its
     kinks read 3-30. A sticky valve whose kicks always exceed its band
     answers every step, and its gain so read is a slipping valve's, larger
-    than a following one's: the ratio then errs low. Where the set point
+    than a following one's: the ratio then errs low. The scan
+    (:func:`~valvediag.analysis.classify.classify_loop`) therefore lets the
+    ratio clear no kinks where the same steps found a valve that went
+    against its kicks (:attr:`SetPointBumps.found`). Where the set point
     never moves, nothing is read.
     """
     answered = bumps.z >= BUMP_Z

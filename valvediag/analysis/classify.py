@@ -61,7 +61,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
-from .bumps import SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps
+from .bumps import (SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps,
+                    setpoint_process_screen)
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import (Oscillation, PhaseWander, detect_oscillation, phase_wander,
                           turned_cycles)
@@ -654,7 +655,13 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         ev_sp = sp[a:b] if sp is not None else None
         # a level's kinks are read only where the process is known to
         # integrate: a healthy flow's answer to a load's step kinks its record
-        # as a slip kinks a level's, and a loose flow valve's take-ups do too
+        # as a slip kinks a level's, and a loose flow valve's take-ups do too.
+        # Without the registry's word, the OP's lasting answer to the
+        # set-point steps may name the process
+        if process_type == "unknown" and screened == "unknown" and ev_sp is not None:
+            steps = setpoint_process_screen(x, u, ev_sp, h)
+            ev["setpoint_screen"] = steps.as_dict()
+            screened = steps.process
         kinds = (process_type,) if process_type != "unknown" else \
             (screened,) if screened != "unknown" else ("self-regulating",)
         if pv_compressed:
@@ -673,7 +680,9 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                 ratio = kinks_over_following(slips, bumps)
                 ev["setpoint_bumps"] = dict(bumps.as_dict(),
                                             kinks_over_following=round(ratio, 2))
-                if ratio < SLIP_OVER_FOLLOWING:
+                # a valve that held through the set-point kicks does not follow: its
+                # gain read at the steps is a slipping valve's, and the ratio errs low
+                if ratio < SLIP_OVER_FOLLOWING and not bumps.found:
                     ev["kinks_followed"] = dict(slips.as_dict(), ratio=round(ratio, 2))
                     continue
             if slips.found and slips.consistent >= min_events:
@@ -686,7 +695,9 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                         "which alone leave sticky and loose undecided")
                     if loose is not None:
                         return loose
-                src = "loop registry" if process_type != "unknown" else "assumed"
+                src = "loop registry" if process_type != "unknown" else \
+                    "data test: the OP after the set-point steps" if level_by_steps() \
+                    else "assumed"
                 what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
                         }.get(slips.kind, "valve events")
                 conf = 0.5 + 0.4 * min(1.0, slips.consistent / 10.0)
@@ -695,10 +706,17 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                                "valve events (slips and take-ups)", **common)
         return None
 
+    def level_by_steps() -> bool:
+        """The registry has no type, and the OP after the set-point steps reads a level."""
+        return ev.get("setpoint_screen", {}).get("process") == "integrating"
+
     def setpoint_steps():
         """A level's valve that held through the kicks of its set-point steps, or None."""
-        if process_type != "integrating" or sp is None or pv_compressed:
+        if not (process_type == "integrating" or level_by_steps()) or sp is None \
+                or pv_compressed:
             return None
+        src = "loop registry" if process_type == "integrating" else \
+            "data test: the OP after the set-point steps"
         bumps = level_bumps()
         ev.setdefault("setpoint_bumps", bumps.as_dict())
         if not bumps.found:
@@ -710,18 +728,18 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             # a dead band makes no slip: the level's kinks name the kind
             return verdict("stiction", 0.5 + 0.3 * min(1.0, bumps.against / 6.0),
                            f"{bumps.reason}; and {kinks.slips} of the level's kinks were "
-                           f"slips (integrating process, loop registry); {method} and valve "
+                           f"slips (integrating process, {src}); {method} and valve "
                            "events", **common)
         return verdict("undecided", 0.4 + 0.2 * min(1.0, bumps.against / 6.0),
                        f"{bumps.reason}: a sticky valve, or a loose one inside its dead band "
-                       f"(integrating process, loop registry); {method}", **common)
+                       f"(integrating process, {src}); {method}", **common)
 
     def rests_at_reversals(also: str = ""):
         """A flow's valve that rests in a dead band at the OP's reversals, or None
         (read where no limit cycle, or no valve model of the cycle, names a fault).
 
         ``also``: what else was read, said after the rests."""
-        if process_type == "integrating":
+        if process_type == "integrating" or level_by_steps():
             # a level runs on after the OP turns, whatever its valve does
             return None
         rests = reversal_rests(x, u, h, sp=sp[a:b] if sp is not None else None)
@@ -747,14 +765,22 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         if travel is not None and travel.verdict == "linear":
             # a valve that follows the OP makes no slips
             return verdict(v, conf, f"{reason}; {travel.reason}", **common)
-        if v == "no-oscillation" and process_type == "unknown":
+        found = valve_events() or setpoint_steps() or rests_at_reversals()
+        if found is not None:
+            return found
+        if v == "no-oscillation" and process_type == "unknown" and level_by_steps():
+            reason += ("; the process type is not in the loop registry, and the OP after the "
+                       "set-point steps reads it as integrating: " + (
+                           "a level's kinks are not read from a compressed record"
+                           if pv_compressed else "the level's kinks were read"))
+        elif v == "no-oscillation" and process_type == "unknown":
             # valve_events read the record as self-regulating only: say how
             # to have a level's kinks read
             reason += ("; the process type is not in the loop registry, so the record was read "
                        "as a self-regulating loop's (a level's kinks are read only where the "
-                       "registry names it integrating)")
-        return (valve_events() or setpoint_steps() or rests_at_reversals()
-                or verdict(v, conf, reason, **common))
+                       "registry names it integrating, or where the OP's answer to the "
+                       "set-point steps shows it)")
+        return verdict(v, conf, reason, **common)
 
     if quiet is not None:
         return slips_or(*quiet)
