@@ -228,8 +228,10 @@ def test_a_sticky_level_of_unknown_type_has_its_kinks_read_after_the_screen():
     assert d.evidence["setpoint_screen"]["process"] == "integrating"
     assert d.verdict in ("stiction", "undecided"), d.reason
     assert "data test: the OP after the set-point steps" in d.reason
+    assert d.process_screen == "integrating"        # the result names the type the data read
     # a healthy flow of unknown type is read as self-regulating, and keeps its valve
     pv, op, sp, h = pi_flow(0)
     d = classify_loop(pv, op, sp, sample_time=h, process_type="unknown")
     assert d.evidence["setpoint_screen"]["process"] == "self-regulating"
     assert d.verdict == "no-oscillation", d.reason
+    assert d.process_screen == "self-regulating"

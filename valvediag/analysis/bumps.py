@@ -378,9 +378,11 @@ def setpoint_process_screen(pv, op, sp, sample_time: float) -> SetPointScreen:
     frequent steps reads a flow's lasting shift), where the controller
     kicks nothing (set-point weighting zero, or a PV-derivative-only
     structure: nothing is read), on a self-regulating loop with a loop gain
-    above about 3 (read as neither) and on a sticky valve whose OP settles
-    anywhere in its band (scatter). A cascade's inner loop, whose set point
-    moves at every sample, has no isolated step.
+    above about 3 (read as neither), on a sticky valve whose OP settles
+    anywhere in its band (scatter), and on a flow whose OP runs into its
+    limit after the steps (its shift is cut short: a level's reading). A
+    cascade's inner loop, whose set point moves at every sample, and a set
+    point ramped by the operator have no isolated step.
 
     References
     ----------

@@ -701,9 +701,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                 what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
                         }.get(slips.kind, "valve events")
                 conf = 0.5 + 0.4 * min(1.0, slips.consistent / 10.0)
+                # a type the data named is the loop's type in the result
+                named = {} if process_type != "unknown" or screened == "unknown" else \
+                    {"process_screen": kind}
                 return verdict(slips.kind, conf if slips.kind != "undecided" else 0.6 * conf,
                                f"{what}: {slips.reason} ({kind} process, {src}); method: "
-                               "valve events (slips and take-ups)", **common)
+                               "valve events (slips and take-ups)", **named, **common)
         return None
 
     def level_by_steps() -> bool:
@@ -717,6 +720,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             return None
         src = "loop registry" if process_type == "integrating" else \
             "data test: the OP after the set-point steps"
+        named = {} if process_type == "integrating" else {"process_screen": "integrating"}
         bumps = level_bumps()
         ev.setdefault("setpoint_bumps", bumps.as_dict())
         if not bumps.found:
@@ -729,10 +733,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             return verdict("stiction", 0.5 + 0.3 * min(1.0, bumps.against / 6.0),
                            f"{bumps.reason}; and {kinks.slips} of the level's kinks were "
                            f"slips (integrating process, {src}); {method} and valve "
-                           "events", **common)
+                           "events", **named, **common)
         return verdict("undecided", 0.4 + 0.2 * min(1.0, bumps.against / 6.0),
                        f"{bumps.reason}: a sticky valve, or a loose one inside its dead band "
-                       f"(integrating process, {src}); {method}", **common)
+                       f"(integrating process, {src}); {method}", **named, **common)
 
     def rests_at_reversals(also: str = ""):
         """A flow's valve that rests in a dead band at the OP's reversals, or None
@@ -780,7 +784,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        "as a self-regulating loop's (a level's kinks are read only where the "
                        "registry names it integrating, or where the OP's answer to the "
                        "set-point steps shows it)")
-        return verdict(v, conf, reason, **common)
+        steps = ev.get("setpoint_screen", {}).get("process", "unknown")
+        named = {"process_screen": steps} if process_type == "unknown" and steps != "unknown" \
+            else {}
+        return verdict(v, conf, reason, **named, **common)
 
     if quiet is not None:
         return slips_or(*quiet)
