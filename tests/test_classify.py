@@ -458,3 +458,17 @@ def test_an_op_stored_a_sample_off_the_pv_gets_the_same_verdict(klass, seed, ind
     e = classify_loop(pv[cut], op[rest], sp[cut], **kw)
     assert e.verdict == d.verdict, (d.reason, e.reason)
     assert e.evidence["op_skew_samples"] == skew
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_set_point_stepped_back_and_forth_is_no_oscillation_of_the_loop(seed):
+    # an operator who steps a healthy level's set point up and down every
+    # 25-50 minutes makes its PV swing regularly; the loop's own oscillation
+    # shows in its control error too, which here only settles after each step
+    from test_bumps import p_only_level
+
+    pv, op, sp, h = p_only_level(seed, "linear")
+    assert detect_oscillation(pv, h).is_regular                   # the hazard is real
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
+    assert d.verdict == "no-oscillation", d.reason
+    assert "its control error does not oscillate" in d.reason

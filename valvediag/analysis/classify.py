@@ -484,6 +484,11 @@ def _deskew_op(pv: np.ndarray, op: np.ndarray, mv: np.ndarray | None):
     return shift(op), (None if mv is None else shift(mv)), lag
 
 
+def _oscillates(osc: Oscillation) -> bool:
+    """A regular oscillation of at least 1.5 cycles was read."""
+    return bool(np.isfinite(osc.period) and osc.cycles >= 1.5 and osc.is_regular)
+
+
 def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "unknown",
                   method: str = "robust", min_cycles: float = 3.0,
                   pv_compressed: bool = False, mv=None) -> LoopDiagnosis:
@@ -540,7 +545,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     the evidence; the valve position moves with the OP, whose controller or
     positioner stores it): the valve's readers all assume that the controller
     answers the PV within its sample. An OP that keeps fewer than 70 % of
-    its samples (stored by exception) is left as it is. A process lag comparable to
+    its samples (stored by exception) is left as it is. Where the set point
+    moves within the stretch, a regular oscillation of the PV must show in
+    the PV less the set point (the control error) too: an operator's steps,
+    up and down every half hour, swing a PV that follows them as regularly
+    as a valve's cycle, and the record is then read as quiet (valve events,
+    set-point steps, reversal rests). A process lag comparable to
     the period rounds a stiction apex and biases the BI towards backlash.
 
     References
@@ -619,6 +629,17 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return verdict("insufficient-data", 0.9, "the PV does not change: frozen sensor or no data",
                        pv=x, op=u)
     osc = detect_oscillation(x, h)
+    s_ab = sp[a:b] if sp is not None else None
+    in_error = None
+    if (s_ab is not None and _oscillates(osc) and bool(np.all(np.isfinite(s_ab)))
+            and np.ptp(s_ab) > 0):
+        # where the set point moves, the loop's own oscillation shows in its
+        # control error too: a PV that follows a set point stepped up and down
+        # swings as regularly as a valve's cycle (an error that swings alone,
+        # where the PV has not followed the steps, leaves the PV's reading)
+        in_error = detect_oscillation(x - s_ab, h)
+        ev["error_oscillation"] = dict(period_s=in_error.period, cycles=in_error.cycles,
+                                       regularity=in_error.regularity)
     spp = osc.period / h if np.isfinite(osc.period) else np.nan
     ev.update(period_s=osc.period, cycles=osc.cycles, regularity=osc.regularity,
               acf_at_period=osc.acf_at_period, periodic_fraction=osc.periodic_fraction,
@@ -638,6 +659,11 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         quiet = ("no-oscillation", 0.6 + 0.3 * min(1.0, max(0.0, 1.0 - osc.regularity)),
                  f"no regular oscillation (regularity {osc.regularity:.2f}, "
                  f"autocorrelation at one period {osc.acf_at_period:.2f})")
+    elif in_error is not None and not _oscillates(in_error):
+        quiet = ("no-oscillation", 0.7,
+                 f"the PV swings with its set point's steps ({osc.cycles:.0f} swings of about "
+                 f"{osc.period:.0f} s), but its control error does not oscillate (regularity "
+                 f"{in_error.regularity:.2f}): the PV follows the operator's moves")
     read: dict = {}      # what was read: valve events by process type, set-point steps
 
     def level_bumps():
