@@ -65,6 +65,37 @@ SCREEN_SHIFT_MAX = 0.3
 SCREEN_SIDE = 30
 
 
+def _loop_record(pv, op, sp, sample_time):
+    """PV, OP and set point as float arrays of one length, and the sample time [s]."""
+    h = float(sample_time)
+    pv = np.asarray(pv, dtype=float).ravel()
+    op = np.asarray(op, dtype=float).ravel()
+    sp = np.asarray(sp, dtype=float).ravel()
+    if not (pv.size == op.size == sp.size):
+        raise ValueError(f"pv, op and sp must have one length, got {pv.size}, {op.size} and "
+                         f"{sp.size} samples")
+    if not (math.isfinite(h) and h > 0):
+        raise ValueError(f"sample_time must be a positive number of seconds, got {sample_time!r}")
+    return pv, op, sp, h
+
+
+def _isolated_steps(sp: np.ndarray, noise: float, side: int):
+    """The set point's steps: all of them, and the isolated ones with their neighbours.
+
+    A step is a move of more than three noise standard deviations of the PV
+    between two samples; it is isolated where ``side`` samples or more
+    separate it from the steps either side (a cascade's set point, moving at
+    every sample, has none). Returns ``(jumps, steps, before, after)``: the
+    first sample after every step, the isolated ones, and for each of those
+    the previous step's sample (-1 for none) and the next one's (the record's
+    length for none)."""
+    jumps = np.flatnonzero(np.abs(np.diff(sp)) > 3.0 * noise) + 1
+    prev = np.r_[-1, jumps[:-1]]
+    nxt = np.r_[jumps[1:], sp.size]
+    isolated = (jumps - prev - 1 >= side) & (nxt - jumps >= side)
+    return jumps, jumps[isolated], prev[isolated], nxt[isolated]
+
+
 @dataclass(frozen=True)
 class SetPointBumps:
     """A level's answer to its set-point steps.
@@ -208,29 +239,17 @@ def setpoint_bumps(pv, op, sp, sample_time: float, *, sense: float | None = None
     ----------
     See the module docstring.
     """
-    h = float(sample_time)
-    pv = np.asarray(pv, dtype=float).ravel()
-    op = np.asarray(op, dtype=float).ravel()
-    sp = np.asarray(sp, dtype=float).ravel()
-    if not (pv.size == op.size == sp.size):
-        raise ValueError(f"pv, op and sp must have one length, got {pv.size}, {op.size} and "
-                         f"{sp.size} samples")
-    if not (math.isfinite(h) and h > 0):
-        raise ValueError(f"sample_time must be a positive number of seconds, got {sample_time!r}")
+    pv, op, sp, h = _loop_record(pv, op, sp, sample_time)
     base = dict(pv=pv, op=op, sp=sp, sample_time=h)
     if pv.size < 2 * MIN_SIDE:
         return SetPointBumps(found=False, reason=f"only {pv.size} samples", **base)
     noise = white_noise_std(pv)
     if not noise > 0:
         return SetPointBumps(found=False, reason="the PV has no measurable noise", **base)
-    jumps = np.flatnonzero(np.abs(np.diff(sp)) > 3.0 * noise) + 1
+    jumps, steps, before, after = _isolated_steps(sp, noise, MIN_SIDE)
     half = max(MIN_SIDE, int(round(half_window_s / h)))
-    # the isolated steps (a cascade's set point, moving at every sample, has none)
-    prev = np.r_[-1, jumps[:-1]]
-    nxt = np.r_[jumps[1:], pv.size]
-    isolated = (jumps - prev - 1 >= MIN_SIDE) & (nxt - jumps >= MIN_SIDE)
     idx, gain, se, kick = [], [], [], []
-    for k, p, q in zip(jumps[isolated][:MAX_STEPS], prev[isolated], nxt[isolated]):
+    for k, p, q in zip(steps[:MAX_STEPS], before, after):
         lo, hi = max(0, k - half, p + 1), min(pv.size, k + half, q)
         if not np.all(np.isfinite(sp[lo:hi])):
             continue
@@ -389,23 +408,11 @@ def setpoint_process_screen(pv, op, sp, sample_time: float) -> SetPointScreen:
     .. [1] Åström, K. J., Hägglund, T. (2006). Advanced PID Control. ISA,
        Research Triangle Park (integrating processes; set-point response).
     """
-    h = float(sample_time)
-    pv = np.asarray(pv, dtype=float).ravel()
-    op = np.asarray(op, dtype=float).ravel()
-    sp = np.asarray(sp, dtype=float).ravel()
-    if not (pv.size == op.size == sp.size):
-        raise ValueError(f"pv, op and sp must have one length, got {pv.size}, {op.size} and "
-                         f"{sp.size} samples")
-    if not (math.isfinite(h) and h > 0):
-        raise ValueError(f"sample_time must be a positive number of seconds, got {sample_time!r}")
+    pv, op, sp, h = _loop_record(pv, op, sp, sample_time)
     noise = white_noise_std(pv) if pv.size >= 2 * SCREEN_SIDE else math.nan
     if not noise > 0:
         return SetPointScreen("unknown", "too short or noiseless a PV to find set-point steps")
-    jumps = np.flatnonzero(np.abs(np.diff(sp)) > 3.0 * noise) + 1
-    prev = np.r_[-1, jumps[:-1]]
-    nxt = np.r_[jumps[1:], pv.size]
-    isolated = (jumps - prev - 1 >= SCREEN_SIDE) & (nxt - jumps >= SCREEN_SIDE)
-    k, p, q = jumps[isolated], prev[isolated], nxt[isolated]
+    _, k, p, q = _isolated_steps(sp, noise, SCREEN_SIDE)
     # settled OP: the last third of the stretch before the step and after it
     c = np.r_[0.0, np.cumsum(op)]
     nb, na = (k - p - 1) // 3, (q - k) // 3
