@@ -91,6 +91,9 @@ EXPORTS = [
     ("gzip-compressed CSV", "export.csv.gz", lambda p: _gzip(p, LONG),
      ["gzip-compressed", "gunzip it"]),
     ("zip archive", "export.zip", lambda p: _zip(p, LONG), ["a zip archive", "unzip it"]),
+    # bytes the CSV reader takes for a zlib stream's start (found by the fuzz test)
+    ("bytes that begin like a zlib stream", "export.csv",
+     lambda p: p.write_bytes(b"x\x01\x02\x01"), ["not a text export"]),
     ("not Parquet", "export.parquet", "tag,timestamp\n", ["parquet"]),
     ("naive time stamps without a time zone", "naive.csv",
      "tag,timestamp,value\nFIC1.PV,2026-11-01 00:00:00,1.5\nFIC1.PV,2026-11-01 00:00:05,1.6\n",

@@ -640,8 +640,13 @@ def _read_csv_lines(path: str) -> tuple[pl.DataFrame, list[str]]:
         notes.append(f"{path}: control character 0x1F replaced by U+241F")
     if not data.strip():
         raise ExportError(f"{path}: empty file (no header, no rows)")
-    lines = pl.read_csv(data, has_header=False, separator=_UNIT_SEP, quote_char=None,
-                        schema={"raw": pl.String}, skip_lines=0)
+    try:
+        lines = pl.read_csv(data, has_header=False, separator=_UNIT_SEP, quote_char=None,
+                            schema={"raw": pl.String}, skip_lines=0)
+    except (OSError, pl.exceptions.PolarsError) as exc:
+        # the reader takes bytes that begin like a compressed stream (gzip,
+        # zlib, zstd) for one, and fails where the rest is not
+        raise ExportError(f"{path}: not a text export ({first_line(exc)})") from None
     lines = lines.with_row_index("line", offset=1).with_columns(pl.col("line").cast(pl.Int64))
     lines = lines.filter(pl.col("raw").is_not_null() & (pl.col("raw").str.strip_chars() != ""))
     if lines.is_empty():  # only Unicode blanks (NBSP, NEL, ...), which bytes.strip() keeps
