@@ -235,3 +235,18 @@ def test_a_sticky_level_of_unknown_type_has_its_kinks_read_after_the_screen():
     assert d.evidence["setpoint_screen"]["process"] == "self-regulating"
     assert d.verdict == "no-oscillation", d.reason
     assert d.process_screen == "self-regulating"
+
+
+def test_a_registry_that_names_the_wrong_process_is_doubted():
+    # a flow registered as a level, and a level registered as a flow: the
+    # verdict says what the OP after the set-point steps read
+    pv, op, sp, h = pi_flow(1)
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
+    assert "registry names the process integrating" in d.reason
+    assert "settles away" in d.evidence["registry_doubt"]
+    pv, op, sp, h = p_only_level(1, "linear")
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="self-regulating")
+    assert "check the registry" in d.reason and "comes back" in d.evidence["registry_doubt"]
+    # a registry that is right raises no doubt
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
+    assert "registry_doubt" not in d.evidence and "check the registry" not in d.reason

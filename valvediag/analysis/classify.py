@@ -506,7 +506,11 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     sample_time : float
         [s]
     process_type : {'unknown', 'integrating', 'self-regulating'}
-        From the loop registry. ``'unknown'`` runs a data test.
+        From the loop registry. ``'unknown'`` runs a data test. A type given
+        is checked against the OP's answer to the set-point steps
+        (:func:`~valvediag.analysis.bumps.setpoint_process_screen`): where
+        that reads the other type, the reason says so (``registry_doubt`` in
+        the evidence), and the verdict still stands on the type given.
     method : {'robust', 'paper'}
         Backlash Index estimator.
     min_cycles : float
@@ -588,6 +592,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                    bi=np.nan, period=np.nan, amplitude=np.nan, cycles=0.0, regularity=np.nan,
                    travel=travel)
         out.update(kw)
+        doubt = ev.get("registry_doubt")
+        if doubt:
+            reason += (f"; but the loop registry names the process {process_type}, and "
+                       f"{doubt}: check the registry")
         return LoopDiagnosis(verdict=v, confidence=round(float(np.clip(conf, 0.05, 0.99)), 2),
                              reason=reason, evidence=ev, **base, **out)
 
@@ -621,6 +629,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         if np.isfinite(m[a:b]).sum() >= MIN_SAMPLES:
             travel = valve_travel(m[a:b], u, h)
             ev["valve_travel"] = travel.as_dict()
+    if process_type != "unknown" and sp is not None:
+        # the registry's type is checked against the OP's answer to the
+        # set-point steps: a flow registered as a level is read by the wrong tests
+        check = setpoint_process_screen(x, u, sp[a:b], h)
+        if check.process not in ("unknown", process_type):
+            ev["registry_doubt"] = check.reason
     dead = dead_response(x, u, sp[a:b] if sp is not None else None)
     if dead:
         ev["dead_response"] = True
