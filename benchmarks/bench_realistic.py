@@ -32,7 +32,7 @@ test; that change redrew loops in every set once more.
 
 Usage: python benchmarks/bench_realistic.py [--loops N] [--set dev|dev2|heldout|all] [--workers W]
        [--classes C1,C2] [--misses] [--evidence FILE] [--valve-position]
-       [--reverse-acting] [--op-door DEV]
+       [--reverse-acting] [--op-door DEV] [--pv-decimals N]
 
 ``--valve-position`` gives the scan each loop's valve position as a
 positioner would report it (``SynthLoop.mv``: the simulated position with
@@ -50,6 +50,12 @@ noise closes the door, a few points between. The loops are otherwise the
 same. The generator stores the OP by exception
 only (0.05-0.2 %), so the targets are stated without it; the flag measures
 how far the verdicts rest on an OP stored point by point.
+
+``--pv-decimals N`` rounds every loop's PV and set point to ``N`` decimals
+(of a span of 100), as an export or a controller's fixed-point value stores
+them; the loops are otherwise the same. The generator's PVs swing over
+anything from a tenth of a percent of the span to most of it, so one
+decimal leaves some cycles only a few steps of the rounding.
 
 ``--reverse-acting`` runs every loop a second time upside down: PV and set
 point turned about the middle of the span (``100 - x``), the OP the same.
@@ -103,6 +109,7 @@ def _work(args):
     klass, i, seed, with_position, *rest = args
     upside_down = bool(rest and rest[0])
     op_door = float(rest[1]) if len(rest) > 1 else 0.0
+    pv_decimals = rest[2] if len(rest) > 2 else None
     from valvediag.io.registry import LoopSpec
     from valvediag.scan import LoopJob, ScanConfig, analyse_loop
     from valvediag.synth.cases import CLASSES, draw_loop
@@ -115,6 +122,9 @@ def _work(args):
         loop = dataclasses.replace(loop, pv=100.0 - loop.pv, sp=100.0 - loop.sp)
     if op_door > 0:
         loop = dataclasses.replace(loop, op=historian_record(loop.op, op_door))
+    if pv_decimals is not None:
+        loop = dataclasses.replace(loop, pv=np.round(loop.pv, pv_decimals),
+                                   sp=np.round(loop.sp, pv_decimals))
     position = with_position and loop.mv is not None
     spec = LoopSpec(loop=loop.name, pv_tag="PV", op_tag="OP", sp_tag="SP",
                     mv_tag="MV" if position else None,
@@ -182,6 +192,9 @@ def main():
                     help="store every loop's OP by swinging door at a deviation of DEV %% "
                          "(exception at half of it), as a historian with the OP's compression "
                          "on does (default 0: the OP as drawn)")
+    ap.add_argument("--pv-decimals", type=int, default=None, metavar="N",
+                    help="round every loop's PV and set point to N decimals (of a span of 100), "
+                         "as an export does (default: as drawn)")
     ap.add_argument("--reverse-acting", action="store_true",
                     help="also run every loop upside down (PV and SP turned about the middle of "
                          "the span, as on a valve that acts the other way) and print the loops "
@@ -195,8 +208,8 @@ def main():
     names = list(SETS) if args.set == "all" else [args.set]
     print(f"valvediag realistic benchmark on {os.cpu_count()} cores")
     for name in names:
-        jobs = [(k, i, SETS[name], args.valve_position, False, args.op_door) for k in classes
-                for i in range(args.loops)]
+        jobs = [(k, i, SETS[name], args.valve_position, False, args.op_door, args.pv_decimals)
+                for k in classes for i in range(args.loops)]
         t0 = time.perf_counter()
         with ProcessPoolExecutor(max_workers=max(1, args.workers)) as ex:
             rows = list(ex.map(_work, jobs, chunksize=2))
@@ -205,6 +218,8 @@ def main():
         with_mv = ", valve position recorded" if args.valve_position else ""
         if args.op_door:
             with_mv += f", OP stored by swinging door at {args.op_door:g} %"
+        if args.pv_decimals is not None:
+            with_mv += f", PV rounded to {args.pv_decimals} decimals"
         _report(rows, f"{name} set (seed {SETS[name]}{with_mv}), "
                       f"{time.perf_counter() - t0:.0f} s wall", details)
         if args.reverse_acting:

@@ -472,3 +472,27 @@ def test_a_set_point_stepped_back_and_forth_is_no_oscillation_of_the_loop(seed):
     d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
     assert d.verdict == "no-oscillation", d.reason
     assert "its control error does not oscillate" in d.reason
+
+
+def test_a_cycle_of_a_few_steps_of_the_pvs_rounding_names_no_valve_fault():
+    """A ringing level that swings over 0.29 (a tenth of a percent of its span
+    five times over), rounded to 0.05: its cycle is a staircase of five steps,
+    whose corners the Backlash Index read as a sticky valve's (BI 1.25)."""
+    loop, pv, op, sp = _study_record("level-linear-tuning", 11, 1)
+    kw = dict(sample_time=loop.sample_time, process_type="integrating")
+    assert classify_loop(pv, op, sp, **kw).verdict == "linear-oscillation"
+    q = 0.05
+    d = classify_loop(np.round(pv / q) * q, op, np.round(sp / q) * q, **kw)
+    assert d.verdict == "insufficient-data", d.reason
+    assert "resolution" in d.reason and d.evidence["pv_quantum"] == pytest.approx(q)
+
+
+@pytest.mark.parametrize("decimals", [2, 1])
+def test_a_sticky_level_rounded_as_an_export_keeps_its_verdict(decimals):
+    """A sticky level swinging over 1.6 with noise of 0.009: rounded to two
+    decimals or to one (16 steps a swing), it is still read as sticky."""
+    loop, pv, op, sp = _study_record("level-stiction-cycle", 11, 0)
+    kw = dict(sample_time=loop.sample_time, process_type="integrating")
+    d = classify_loop(np.round(pv, decimals), op, np.round(sp, decimals), **kw)
+    assert d.verdict == classify_loop(pv, op, sp, **kw).verdict == "stiction", d.reason
+    assert d.evidence["pv_quantum"] == pytest.approx(10.0 ** -decimals)

@@ -275,3 +275,26 @@ def test_a_sparse_record_is_read_at_its_stored_resolution():
     bounded = resolved_noise_std(fast, period=30.0)
     assert bounded == pytest.approx(stored_resolution(fast) / 3) and \
         bounded < white_noise_std(fast) / 4
+
+
+@pytest.mark.parametrize("step", [0.01, 0.1, 1.0])
+def test_the_rounding_of_an_export_is_read_as_the_records_quantum(step):
+    from valvediag.analysis.quality import record_quantum
+
+    # a swing of 1.8 with noise of a hundredth: every rounding holds values
+    x = 40.0 + _triangle(noise=0.01)
+    assert record_quantum(np.round(x / step) * step) == pytest.approx(step, rel=1e-6)
+
+
+def test_a_record_in_full_precision_or_a_straight_ramp_has_no_quantum():
+    from valvediag.analysis.quality import record_quantum
+    from valvediag.synth.plant import historian_record
+
+    assert record_quantum(_triangle(noise=0.01)) == 0.0
+    # a noise-free triangle's moves are all alike, but it holds no value
+    assert record_quantum(_triangle(noise=0.0)) == 0.0
+    # drawn back between a swinging door's points: straight lines, no grid
+    assert record_quantum(historian_record(_triangle(noise=0.01), 0.1)) == 0.0
+    # noise of several quanta moves nearly every sample: no staircase
+    assert record_quantum(np.round(_triangle(noise=0.5) / 0.1) * 0.1) == 0.0
+    assert record_quantum(np.round(_triangle(n=30, noise=0.01), 1)) == 0.0   # too few moves

@@ -66,7 +66,8 @@ from .bumps import (SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps,
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import (Oscillation, PhaseWander, detect_oscillation, phase_wander,
                           turned_cycles)
-from .quality import bridge_short_gaps, despike, longest_run, stored_points, white_noise_std
+from .quality import (bridge_short_gaps, despike, longest_run, record_quantum, stored_points,
+                      white_noise_std)
 from .reversals import reversal_rests
 from .signature import (KIND_SHARE, SENSE_SKEW, ValveSignature, controller_lag,
                         cycle_transitions, horch_correlation, stick_slip_events,
@@ -81,6 +82,12 @@ PROCESS_TYPES = ("integrating", "self-regulating", "unknown")
 
 MIN_SAMPLES = 32
 MIN_SAMPLES_PER_PERIOD = 8.0
+#: Fewest steps of the PV's stored resolution (:func:`record_quantum`)
+#: across a cycle's swing (peak to peak) for its waveform to be read: about
+#: a tenth of a period either side of an apex, where the Backlash Index
+#: reads the turn, a triangle drops by two fifths of its swing, which must
+#: span several steps.
+MIN_QUANTA_PER_SWING = 10.0
 #: Below this harmonic distortion of the mean PV cycle the oscillation is
 #: sinusoidal: a linear loop (calibrated on benchmarks/bench_bi_sweep.py).
 DIST_LINEAR = 0.03
@@ -557,6 +564,22 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     set-point steps, reversal rests). A process lag comparable to
     the period rounds a stiction apex and biases the BI towards backlash.
 
+    A PV stored to a grid (an export rounded to a decimal or two, a
+    converter's or a fixed-point controller's steps:
+    :func:`~valvediag.analysis.quality.record_quantum`, ``pv_quantum`` in
+    the evidence) whose cycle swings over fewer than
+    :data:`MIN_QUANTA_PER_SWING` steps is a staircase whose corners are the
+    rounding's: no valve fault is named from such a cycle (the verdict is
+    ``insufficient-data``, and the reason gives the resolution and what the
+    record read), unless the recorded valve position shows one. A linear
+    reading stands: rounding adds harmonics to a cycle, it does not take a
+    valve's away. On the realistic benchmark's study seeds 10-16 (4 loops
+    per class) with the PV rounded to 0.05, the scan read three healthy
+    valves as faulty before this rule and one after (a healthy level of
+    unknown type, quiet, whose moves read as a flow's take-ups); 118 of 140
+    sticky valves were found, 119 before. Rounded to 0.01, no verdict moved
+    by it.
+
     References
     ----------
     .. [1] Farenzena, M., Trierweiler, J. O. (2012). Valve backlash and
@@ -586,12 +609,19 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     base = dict(process_type=process_type, sample_time=h)
     ev: dict = {"method": method, "samples": int(pv.size)}
     travel = None
+    coarse: list[str] = []     # why the PV's rounding hides a cycle's waveform
 
     def verdict(v, conf, reason, **kw):
         out = dict(process_screen="metadata" if process_type != "unknown" else "unknown",
                    bi=np.nan, period=np.nan, amplitude=np.nan, cycles=0.0, regularity=np.nan,
                    travel=travel)
         out.update(kw)
+        if coarse and v in ("stiction", "backlash", "undecided") and not (
+                travel is not None and travel.fault):
+            # a waveform of a few steps of the PV's rounding names no valve
+            # fault (the recorded position, where it shows one, does)
+            reason = f"{coarse[0]}; the record read {v}: {reason}"
+            v, conf = "insufficient-data", 0.6
         doubt = ev.get("registry_doubt")
         if doubt:
             reason += (f"; but the loop registry names the process {process_type}, and "
@@ -837,6 +867,17 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return verdict("insufficient-data", 0.8,
                        f"only {spp:.1f} samples per oscillation period; the waveform is lost "
                        f"(need at least {MIN_SAMPLES_PER_PERIOD:g})", **common)
+    quantum = record_quantum(x)
+    if quantum > 0:
+        ev["pv_quantum"] = quantum
+        steps = 2.0 * osc.amplitude / quantum
+        if steps < MIN_QUANTA_PER_SWING:
+            # a cycle of a few steps of the PV's rounding is a staircase: its
+            # turns and jumps are the steps' as much as the valve's
+            coarse.append(f"the cycle swings over only {steps:.0f} steps of the PV's stored "
+                          f"resolution ({quantum:.3g}), too few to read a valve's fault in its "
+                          f"waveform (need {MIN_QUANTA_PER_SWING:g}): store or export the PV "
+                          "with more decimals")
     if osc.cycles < min_cycles:
         return slips_or("insufficient-data", 0.7,
                         f"only {osc.cycles:.1f} cycles of a {osc.period:.4g} s oscillation; "
