@@ -474,25 +474,50 @@ def test_a_set_point_stepped_back_and_forth_is_no_oscillation_of_the_loop(seed):
     assert "its control error does not oscillate" in d.reason
 
 
-def test_a_cycle_of_a_few_steps_of_the_pvs_rounding_names_no_valve_fault():
+def test_a_valve_verdict_on_a_cycle_of_a_few_steps_of_the_pvs_rounding_says_so():
     """A ringing level that swings over 0.29 (a tenth of a percent of its span
     five times over), rounded to 0.05: its cycle is a staircase of five steps,
-    whose corners the Backlash Index read as a sticky valve's (BI 1.25)."""
+    whose corners the Backlash Index reads as a sticky valve's (BI 1.25). The
+    verdict says how coarse the record is, at half its confidence."""
+    from valvediag.analysis.classify import COARSE_CONFIDENCE
+
     loop, pv, op, sp = _study_record("level-linear-tuning", 11, 1)
     kw = dict(sample_time=loop.sample_time, process_type="integrating")
-    assert classify_loop(pv, op, sp, **kw).verdict == "linear-oscillation"
+    fine = classify_loop(pv, op, sp, **kw)
+    assert fine.verdict == "linear-oscillation" and "resolution" not in fine.reason
     q = 0.05
     d = classify_loop(np.round(pv / q) * q, op, np.round(sp / q) * q, **kw)
-    assert d.verdict == "insufficient-data", d.reason
-    assert "resolution" in d.reason and d.evidence["pv_quantum"] == pytest.approx(q)
+    assert d.evidence["pv_quantum"] == pytest.approx(q)
+    assert d.evidence["quanta_per_swing"] < 10
+    if d.verdict in ("stiction", "backlash", "undecided"):
+        assert "steps of the PV's stored resolution (0.05)" in d.reason, d.reason
+        assert d.confidence <= COARSE_CONFIDENCE
+
+
+@pytest.mark.parametrize("q", [0.2, 0.3])
+def test_a_sticky_level_rounded_to_a_few_steps_a_swing_is_found_with_a_caveat(q):
+    """The sticky level below, rounded to 0.2 or 0.3 (eight or six steps a
+    swing): still read as a faulty valve, at half the confidence, and the
+    reason says why (at 0.2 it reads backlash, at 0.3 stiction: the kind is
+    what such a record misreads)."""
+    from valvediag.analysis.classify import COARSE_CONFIDENCE
+
+    loop, pv, op, sp = _study_record("level-stiction-cycle", 11, 0)
+    kw = dict(sample_time=loop.sample_time, process_type="integrating")
+    d = classify_loop(np.round(pv / q) * q, op, np.round(sp / q) * q, **kw)
+    assert d.verdict in ("stiction", "backlash", "undecided"), d.reason
+    assert f"steps of the PV's stored resolution ({q:g})" in d.reason
+    assert d.confidence <= COARSE_CONFIDENCE
 
 
 @pytest.mark.parametrize("decimals", [2, 1])
 def test_a_sticky_level_rounded_as_an_export_keeps_its_verdict(decimals):
     """A sticky level swinging over 1.6 with noise of 0.009: rounded to two
-    decimals or to one (16 steps a swing), it is still read as sticky."""
+    decimals or to one (16 steps a swing), it is still read as sticky, with
+    no caveat."""
     loop, pv, op, sp = _study_record("level-stiction-cycle", 11, 0)
     kw = dict(sample_time=loop.sample_time, process_type="integrating")
     d = classify_loop(np.round(pv, decimals), op, np.round(sp, decimals), **kw)
     assert d.verdict == classify_loop(pv, op, sp, **kw).verdict == "stiction", d.reason
     assert d.evidence["pv_quantum"] == pytest.approx(10.0 ** -decimals)
+    assert "resolution" not in d.reason
