@@ -12,7 +12,7 @@ from valvediag.models.closedloop import simulate_loop
 from valvediag.synth.cases import alternating_steps
 
 
-def p_only_level(seed, valve, valve_params=None, sense=1.0, h=5.0, n=17_280):
+def p_only_level(seed, valve, valve_params=None, sense=1.0, h=5.0, n=17_280, tau=300.0):
     """A day of a proportional-only level under a wandering load, with set-point steps."""
     rng = np.random.default_rng(seed)
     sp = alternating_steps(rng, n, every_s=(1500.0, 3000.0), size=(2.0, 4.0), sample_time=h)
@@ -20,7 +20,7 @@ def p_only_level(seed, valve, valve_params=None, sense=1.0, h=5.0, n=17_280):
     knots = np.arange(0.0, n * h + 901.0, 900.0)
     load = np.interp(t, knots, np.cumsum(rng.normal(0.0, 0.8, knots.size)))
     r = simulate_loop(kc=1.5 * sense, ti=1e12, sample_time=h, n_samples=n, process="integrating",
-                      process_gain=sense, tau=300.0, valve=valve, valve_params=valve_params,
+                      process_gain=sense, tau=tau, valve=valve, valve_params=valve_params,
                       sp=50.0, load=50.0 * sense, load_profile=load * sense, sp_profile=sp,
                       noise_std=0.05, seed=seed)
     return r.pv, r.op, r.sp, h
@@ -62,6 +62,25 @@ def test_a_sticky_level_valve_holds_through_the_kicks(seed):
     # the valve held through most kicks, and the level went its own way
     assert b.against >= b.steps / 2
     assert "moved against the OP" in b.reason
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_a_tight_level_kept_at_one_sample_a_minute_is_not_read_against_its_kicks(seed):
+    """A level that answers its kick in about 40 s, kept at every 60 s: the
+    record's OP shows the kick at one sample and has moved past it at the
+    next, so the integral of the OP reads against the level (at 36-37 of 37
+    steps of these two seeds; where the minute's samples fall against the
+    steps decides it, and seed 1's read none). Such steps are not counted;
+    the same steps at 5 s answer the kick. A sticky valve kept so still
+    holds its kick and is found."""
+    pv, op, sp, h = p_only_level(seed, "linear", tau=60.0)
+    assert setpoint_bumps(pv, op, sp, h).answered >= 30
+    b = setpoint_bumps(pv[::12], op[::12], sp[::12], 12 * h)
+    assert np.sum(b.z <= -BUMP_Z) >= MIN_BUMPS_AGAINST       # the hazard
+    assert b.against < MIN_BUMPS_AGAINST and not b.found
+    assert np.all(b.held[b.z <= -BUMP_Z] < 0.5)
+    pv, op, sp, h = p_only_level(seed, "kano", {"S": 4.0, "J": 2.0}, tau=60.0)
+    assert setpoint_bumps(pv[::12], op[::12], sp[::12], 12 * h).found
 
 
 def test_one_step_against_the_kick_is_not_a_fault():
