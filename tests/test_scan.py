@@ -122,16 +122,38 @@ def test_conflicting_episodes_lower_the_confidence():
     first = t < 9000
     pv = np.where(first, spv, sine)
     op = np.where(first, sop, sop2)
-    pv[9000:9010] = np.nan                 # bad states split the two stretches (a single
-    #                                        bad sample would be bridged)
+    pv[9000:9130] = np.nan                 # bad states split the two stretches (a gap of
+    #                                        two minutes or less would be bridged)
     r = analyse_loop(job_for(SPEC, t.size), {"pv": frame(t, pv), "op": frame(t, op)})
     verdicts = [e.verdict for e in r.episodes]
     assert verdicts == ["stiction", "linear-oscillation"]
-    assert r.verdict == "stiction"         # 9000 s against 5400 s, equal confidence
+    assert r.verdict == "stiction"         # 9000 s against 5269 s, equal confidence
     share = r.evidence["agreement"]
-    assert share == pytest.approx(9000 / 14399, abs=0.01)
+    assert share == pytest.approx(9000 / (9000 + 14399 - 9130), abs=0.01)
     assert r.confidence == pytest.approx(r.episodes[0].confidence * share, abs=0.01)
     assert "episodes disagree" in r.reason
+
+
+def test_a_day_with_a_minute_missing_every_hour_is_analysed_whole():
+    """A sticky loop whose export lacks a minute every hour: the gaps are
+    bridged, and the day is read as one record with the verdict it has
+    without them (cut at each gap, it was read as 24 snapshots of 59 min)."""
+    from valvediag.scan.loop import BRIDGE_GAP_S
+
+    rng = np.random.default_rng(5)
+    t = np.arange(86400.0)
+    pv, op = sticky(t, rng)
+    whole = analyse_loop(job_for(SPEC, t.size), {"pv": frame(t, pv), "op": frame(t, op)})
+    keep = (t % 3600.0) < 3600.0 - 60.0
+    r = analyse_loop(job_for(SPEC, t.size), {"pv": frame(t[keep], pv[keep]),
+                                             "op": frame(t[keep], op[keep])})
+    assert r.evidence["segments"] == 1 and r.evidence["breaks_bridged"] >= 23 * 59
+    assert r.verdict == whole.verdict == "stiction", r.reason
+    # a gap longer than the bridge still cuts the record
+    keep = (t % 43200.0) < 43200.0 - 2 * BRIDGE_GAP_S
+    r = analyse_loop(job_for(SPEC, t.size), {"pv": frame(t[keep], pv[keep]),
+                                             "op": frame(t[keep], op[keep])})
+    assert r.evidence["segments"] == 2
 
 
 def test_quiet_loop_is_no_oscillation_and_a_snapshot_says_what_it_covers():

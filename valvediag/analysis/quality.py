@@ -851,9 +851,10 @@ def bridge_short_breaks(aligned: AlignedLoop, max_len: int = BRIDGE_SAMPLES
     -----
     Scattered bad samples (a historian's ``Bad Input`` now and then, one in
     twenty say) cut a record into stretches too short to analyse, though
-    each break is shorter than anything a valve does. Longer breaks (a
-    stretch of bad states, a gap in the export) are left alone. The
-    record's data quality is measured before this, on what was recorded.
+    each break is shorter than anything a valve does. Breaks longer than
+    ``max_len`` are left alone (the scan bridges up to two minutes:
+    :data:`valvediag.scan.loop.BRIDGE_GAP_S`). The record's data quality is
+    measured before this, on what was recorded.
     """
     segs = aligned.segments
     breaks = [(b, a) for (_, b), (a, _) in zip(segs, segs[1:]) if a - b <= max_len]

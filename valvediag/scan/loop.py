@@ -15,7 +15,8 @@ import numpy as np
 from ..analysis.align import AlignedLoop, align_loop, median_spacing, to_epoch_us
 from ..analysis.classify import LAG_DOUBT, LoopDiagnosis, classify_loop
 from ..analysis.oscillation import ACF_STRONG, PERIODIC_FRACTION_MIN
-from ..analysis.quality import DataQuality, bridge_short_breaks, quality_metrics
+from ..analysis.quality import (BRIDGE_SAMPLES, DataQuality, bridge_short_breaks,
+                                quality_metrics)
 from ..io.registry import LoopSpec
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -43,6 +44,11 @@ _log = logging.getLogger(__name__)
 #: Over a few dozen samples noise can pass for a short regular oscillation.
 MIN_SEGMENT_SAMPLES = 64
 MIN_SEGMENT_S = 600.0
+#: Longest gap in a record bridged by a straight line before it is analysed
+#: [s] (at least :data:`~valvediag.analysis.quality.BRIDGE_SAMPLES` samples):
+#: a minute or two missing now and then (a collector's restart, a lost page
+#: of an export) would otherwise cut a day into snapshots, each judged alone.
+BRIDGE_GAP_S = 120.0
 #: Block length of the activity screen inside a segment [periods].
 BLOCK_PERIODS = 4.0
 #: A block is active when its half range reaches this share of the segment amplitude ...
@@ -675,8 +681,10 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     episodes, integrating screen, verdict per episode and per loop, severity.
     A loop without a PV or OP tag, without samples in the window or with only
     bad-state samples is ``insufficient-data`` and the reason names the tag.
-    The classifier analyses one gap-free segment at a time, so a day split by
-    gaps is analysed in pieces; an oscillation that occupies less than about
+    Gaps of up to :data:`BRIDGE_GAP_S` are bridged by straight lines first
+    (``breaks_bridged`` in the evidence counts the samples drawn). The
+    classifier analyses one gap-free segment at a time, so a day split by
+    longer gaps is analysed in pieces; an oscillation that occupies less than about
     a third of a segment may be missed by the segment's classification (the
     block screen only splits segments found oscillating). An unexpected error
     in the analysis gives the loop ``insufficient-data`` with the error as its
@@ -703,8 +711,10 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                          max_gap=config.max_gap_s)
     q = quality_metrics(aligned, roles, span=spec.span)
     qd = to_plain(q.as_dict())
-    # scattered bad samples must not cut the record into stretches too short to use
-    aligned, breaks_bridged = bridge_short_breaks(aligned)
+    # scattered bad samples and short gaps must not cut the record into
+    # stretches too short to use
+    aligned, breaks_bridged = bridge_short_breaks(
+        aligned, max(BRIDGE_SAMPLES, int(BRIDGE_GAP_S // aligned.sample_time)))
     window_s = (job.end - job.start).total_seconds()
     h = aligned.sample_time
     min_len = max(MIN_SEGMENT_SAMPLES, int(math.ceil(MIN_SEGMENT_S / h)))
