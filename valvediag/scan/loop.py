@@ -14,7 +14,7 @@ import numpy as np
 
 from ..analysis.align import AlignedLoop, align_loop, median_spacing, to_epoch_us
 from ..analysis.classify import LAG_DOUBT, LoopDiagnosis, classify_loop
-from ..analysis.oscillation import ACF_STRONG, PERIODIC_FRACTION_MIN
+from ..analysis.oscillation import ACF_STRONG, PERIODIC_FRACTION_MIN, detect_oscillation
 from ..analysis.quality import (BRIDGE_SAMPLES, DataQuality, bridge_short_breaks,
                                 quality_metrics)
 from ..io.registry import LoopSpec
@@ -47,8 +47,13 @@ MIN_SEGMENT_S = 600.0
 #: Longest gap in a record bridged by a straight line before it is analysed
 #: [s] (at least :data:`~valvediag.analysis.quality.BRIDGE_SAMPLES` samples):
 #: a minute or two missing now and then (a collector's restart, a lost page
-#: of an export) would otherwise cut a day into snapshots, each judged alone.
+#: of an export) would otherwise cut a day into snapshots, each judged alone
+#: ...
 BRIDGE_GAP_S = 120.0
+#: ... and at most this share of the period of the oscillation that the
+#: longest stretch shows, if it shows one: a line drawn over a fast flow's
+#: cycles would erase them.
+BRIDGE_PERIOD_SHARE = 0.1
 #: Block length of the activity screen inside a segment [periods].
 BLOCK_PERIODS = 4.0
 #: A block is active when its half range reaches this share of the segment amplitude ...
@@ -681,8 +686,10 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     episodes, integrating screen, verdict per episode and per loop, severity.
     A loop without a PV or OP tag, without samples in the window or with only
     bad-state samples is ``insufficient-data`` and the reason names the tag.
-    Gaps of up to :data:`BRIDGE_GAP_S` are bridged by straight lines first
-    (``breaks_bridged`` in the evidence counts the samples drawn). The
+    Gaps of up to :data:`BRIDGE_GAP_S`, and of at most a tenth of the period
+    of the oscillation the longest stretch shows, are bridged by straight
+    lines first (``breaks_bridged`` in the evidence counts the samples
+    drawn). The
     classifier analyses one gap-free segment at a time, so a day split by
     longer gaps is analysed in pieces; an oscillation that occupies less than about
     a third of a segment may be missed by the segment's classification (the
@@ -696,6 +703,23 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
         _log.exception("analysis of loop %s failed", job.spec.loop)
         return _insufficient(job, f"analysis failed ({type(exc).__name__}: {exc}); "
                                   "please report this with the loop's data", frames=frames)
+
+
+def _bridge_samples(aligned: AlignedLoop) -> int:
+    """Longest break between a record's stretches to bridge [samples]: up to
+    :data:`BRIDGE_GAP_S`, and :data:`BRIDGE_PERIOD_SHARE` of the period of the
+    longest stretch's oscillation where it has one."""
+    segs, h = aligned.segments, aligned.sample_time
+    breaks = [a - b for (_, b), (a, _) in zip(segs, segs[1:])]
+    if not breaks or max(breaks) <= BRIDGE_SAMPLES:
+        return BRIDGE_SAMPLES
+    limit = BRIDGE_GAP_S
+    a, b = max(segs, key=lambda s: s[1] - s[0])
+    if b - a >= MIN_SEGMENT_SAMPLES:
+        period = detect_oscillation(aligned.pv[a:b], h).period
+        if math.isfinite(period):
+            limit = min(limit, BRIDGE_PERIOD_SHARE * period)
+    return max(BRIDGE_SAMPLES, int(limit // h))
 
 
 def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
@@ -713,8 +737,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     qd = to_plain(q.as_dict())
     # scattered bad samples and short gaps must not cut the record into
     # stretches too short to use
-    aligned, breaks_bridged = bridge_short_breaks(
-        aligned, max(BRIDGE_SAMPLES, int(BRIDGE_GAP_S // aligned.sample_time)))
+    aligned, breaks_bridged = bridge_short_breaks(aligned, _bridge_samples(aligned))
     window_s = (job.end - job.start).total_seconds()
     h = aligned.sample_time
     min_len = max(MIN_SEGMENT_SAMPLES, int(math.ceil(MIN_SEGMENT_S / h)))
