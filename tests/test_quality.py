@@ -197,6 +197,27 @@ def test_short_breaks_are_bridged_and_long_ones_kept():
     assert bridge_short_breaks(joined) == (joined, 0)
 
 
+def test_a_bridged_break_holds_the_set_point_and_draws_pv_and_op():
+    """Ten rows missing from every tag (an export's lost page): bridged by
+    a straight line in PV and OP. The set point is held at its value before
+    the break by the alignment (a set point stays where it was put), so the
+    readers that need it whole (the set-point steps, the valve events) still
+    have it over the bridged stretch."""
+    from valvediag.analysis.quality import bridge_short_breaks
+
+    t, pv, op = clean_loop()
+    sp = np.where(t < 1000, 50.0, 52.0)
+    keep = (t < 2000) | (t >= 2010)
+    aligned = align_loop({"pv": frame(t[keep], pv[keep]), "op": frame(t[keep], op[keep]),
+                          "sp": frame(t[keep], sp[keep])}, sample_time=1.0, max_gap=2.0)
+    assert len(aligned.segments) == 2
+    joined, samples = bridge_short_breaks(aligned, 20)
+    assert len(joined.segments) == 1 and samples >= 10
+    gap = slice(2000, 2010)
+    assert np.all(joined.sp[gap] == 52.0)
+    assert np.all(np.isfinite(joined.pv[gap])) and np.all(np.isfinite(joined.op[gap]))
+
+
 def _triangle(n=20000, period=600, swing=1.8, noise=0.01, seed=0):
     t = np.arange(n)
     tri = swing * np.abs(((t / period) % 1) * 2 - 1)
