@@ -689,13 +689,13 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     Gaps of up to :data:`BRIDGE_GAP_S`, and of at most a tenth of the period
     of the oscillation the longest stretch shows, are bridged by straight
     lines first (``breaks_bridged`` in the evidence counts the samples
-    drawn). The
-    classifier analyses one gap-free segment at a time, so a day split by
-    longer gaps is analysed in pieces; an oscillation that occupies less than about
-    a third of a segment may be missed by the segment's classification (the
-    block screen only splits segments found oscillating). An unexpected error
-    in the analysis gives the loop ``insufficient-data`` with the error as its
-    reason (and logs the traceback) rather than stopping the scan.
+    drawn). The classifier analyses one gap-free segment at a time, so a day
+    split by longer gaps is analysed in pieces; an oscillation that occupies
+    less than about a third of a segment may be missed by the segment's
+    classification (the block screen only splits segments found
+    oscillating). An unexpected error in the analysis gives the loop
+    ``insufficient-data`` with the error as its reason (and logs the
+    traceback) rather than stopping the scan.
     """
     try:
         return _analyse_loop(job, frames, config)
@@ -710,8 +710,7 @@ def _bridge_samples(aligned: AlignedLoop) -> int:
     :data:`BRIDGE_GAP_S`, and :data:`BRIDGE_PERIOD_SHARE` of the period of the
     longest stretch's oscillation where it has one."""
     segs, h = aligned.segments, aligned.sample_time
-    breaks = [a - b for (_, b), (a, _) in zip(segs, segs[1:])]
-    if not breaks or max(breaks) <= BRIDGE_SAMPLES:
+    if len(segs) < 2:
         return BRIDGE_SAMPLES
     limit = BRIDGE_GAP_S
     a, b = max(segs, key=lambda s: s[1] - s[0])
@@ -736,8 +735,11 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     q = quality_metrics(aligned, roles, span=spec.span)
     qd = to_plain(q.as_dict())
     # scattered bad samples and short gaps must not cut the record into
-    # stretches too short to use
-    aligned, breaks_bridged = bridge_short_breaks(aligned, _bridge_samples(aligned))
+    # stretches too short to use (the gaps' limit read once the scattered
+    # samples are bridged)
+    aligned, breaks_bridged = bridge_short_breaks(aligned)
+    aligned, more = bridge_short_breaks(aligned, _bridge_samples(aligned))
+    breaks_bridged += more
     window_s = (job.end - job.start).total_seconds()
     h = aligned.sample_time
     min_len = max(MIN_SEGMENT_SAMPLES, int(math.ceil(MIN_SEGMENT_S / h)))
