@@ -164,6 +164,36 @@ def test_a_day_with_a_minute_missing_every_hour_is_analysed_whole(period):
         assert r.evidence["segments"] == 24 and r.evidence["breaks_bridged"] == 0
 
 
+def test_a_fast_loop_exported_for_a_few_minutes_is_read_as_its_slower_twin():
+    """Five minutes of a fast loop at 0.1 s hold fifty cycles: the record is
+    the same, sample for sample, as 100 minutes of a loop twenty times
+    slower at 2 s, and is read alike (it was refused: no stretch lasting ten
+    minutes). Where a record has a stretch of ten minutes, shorter ones
+    beside it are still left out."""
+    from valvediag.scan.loop import MIN_SEGMENT_S
+
+    rng = np.random.default_rng(6)
+    k = np.arange(3000.0)
+    pv, op = sticky(k * 2.0, rng)          # a 120 s cycle at 2 s: 60 samples a cycle
+    for h in (2.0, 0.1):
+        t = k * h
+        r = analyse_loop(job_for(SPEC, t.size, h), {"pv": frame(t, pv), "op": frame(t, op)})
+        assert r.verdict == "stiction" and r.evidence["segments"] == 1, (h, r.reason)
+        assert r.period_s == pytest.approx(60 * h, rel=0.03)
+    # inside a day's window, the verdict names the minutes it stands on
+    t = k * 0.1
+    r = analyse_loop(LoopJob(SPEC, T0, T0 + dt.timedelta(hours=24)),
+                     {"pv": frame(t, pv), "op": frame(t, op)})
+    assert r.verdict == "stiction" and "(from the 5 min of data available of the 24 h" in r.reason
+    # at 2 s, a stretch of 40 min and two of 8 min: the short ones are left out
+    t = k * 2.0
+    keep = (k < 1200) | ((k > 1500) & (k < 1740)) | (k > 2000) & (k < 2240)
+    assert 240 * 2.0 < MIN_SEGMENT_S
+    r = analyse_loop(job_for(SPEC, t.size, 2.0), {"pv": frame(t[keep], pv[keep]),
+                                                  "op": frame(t[keep], op[keep])})
+    assert r.evidence["segments"] == 1
+
+
 def test_quiet_loop_is_no_oscillation_and_a_snapshot_says_what_it_covers():
     rng = np.random.default_rng(4)
     t = np.arange(7200.0)
@@ -203,7 +233,7 @@ def test_a_valve_verdict_on_a_snapshot_says_what_it_stands_on():
     (SPEC, {"pv": frame(range(50), [None] * 50), "op": frame(range(50), range(50))}, (),
      "all 50 PV samples of LIC1.PV in the window are bad states (I/O Timeout)"),
     (SPEC, {"pv": frame(range(40), range(40)), "op": frame(range(40), range(40))}, (),
-     "no stretch of usable PV and OP data lasting 10 min"),
+     "no stretch of usable PV and OP data lasting 1.07 min (64 samples)"),
     (SPEC, {"pv": frame([30], [3.0]), "op": frame(range(50), range(50))}, (),
      "PV tag LIC1.PV has a single valid sample from"),
     (SPEC, {"pv": frame(range(50), range(50)), "op": frame(range(50), [40.0] + [None] * 49)},

@@ -44,6 +44,11 @@ _log = logging.getLogger(__name__)
 #: Over a few dozen samples noise can pass for a short regular oscillation.
 MIN_SEGMENT_SAMPLES = 64
 MIN_SEGMENT_S = 600.0
+#: In a record none of whose stretches lasts :data:`MIN_SEGMENT_S` (a few
+#: minutes of a fast loop sampled at a fraction of a second, as engineers
+#: export them), the stretches of at least this share of the longest are
+#: analysed instead: the seconds are a level's, not a fast flow's.
+SHORT_RECORD_SHARE = 0.5
 #: Longest gap in a record bridged by a straight line before it is analysed
 #: [s] (at least :data:`~valvediag.analysis.quality.BRIDGE_SAMPLES` samples):
 #: a minute or two missing now and then (a collector's restart, a lost page
@@ -690,7 +695,9 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     of the oscillation the longest stretch shows, are bridged by straight
     lines first (``breaks_bridged`` in the evidence counts the samples
     drawn). The classifier analyses one gap-free segment at a time, so a day
-    split by longer gaps is analysed in pieces; an oscillation that occupies
+    split by longer gaps is analysed in pieces, those of at least
+    :data:`MIN_SEGMENT_S` (or, where none lasts that long, of at least
+    :data:`SHORT_RECORD_SHARE` of the longest); an oscillation that occupies
     less than about a third of a segment may be missed by the segment's
     classification (the block screen only splits segments found
     oscillating). An unexpected error in the analysis gives the loop
@@ -721,6 +728,24 @@ def _bridge_samples(aligned: AlignedLoop) -> int:
     return max(BRIDGE_SAMPLES, int(limit // h))
 
 
+def _duration(seconds: float) -> str:
+    """A record's length in words: hours, or minutes under an hour."""
+    return f"{seconds / 60:.2g} min" if seconds < 3600.0 else f"{seconds / 3600:.2g} h"
+
+
+def _shortest_stretch(aligned: AlignedLoop) -> int:
+    """Fewest grid points of a stretch analysed: :data:`MIN_SEGMENT_S` and
+    :data:`MIN_SEGMENT_SAMPLES`, or, in a record none of whose stretches lasts
+    :data:`MIN_SEGMENT_S` (a short export of a fast loop), half its longest
+    stretch (and :data:`MIN_SEGMENT_SAMPLES`)."""
+    h = aligned.sample_time
+    floor = int(math.ceil(MIN_SEGMENT_S / h))
+    longest = max((b - a for a, b in aligned.segments), default=0)
+    if longest < floor:
+        floor = int(math.ceil(SHORT_RECORD_SHARE * longest))
+    return max(MIN_SEGMENT_SAMPLES, floor)
+
+
 def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                   config: ScanConfig) -> LoopResult:
     spec = job.spec
@@ -742,7 +767,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     breaks_bridged += more
     window_s = (job.end - job.start).total_seconds()
     h = aligned.sample_time
-    min_len = max(MIN_SEGMENT_SAMPLES, int(math.ceil(MIN_SEGMENT_S / h)))
+    min_len = _shortest_stretch(aligned)
     segs = [(a, b) for a, b in aligned.segments if b - a >= min_len]
     usable_s = sum(b - a for a, b in segs) * h
     ev: dict = {"problems": list(job.problems), "sample_time_s": h, "segments": len(segs),
@@ -791,14 +816,14 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
         verdict, confidence, reason = rep.verdict, rep.confidence, rep.reason
         if verdict == "no-oscillation" and ev["coverage"] < config.min_coverage:
             # a snapshot: say what the verdict covers rather than refuse it
-            reason = (f"no oscillation in the {usable_s / 3600:.2g} h of data available (of the "
+            reason = (f"no oscillation in the {_duration(usable_s)} of data available (of the "
                       f"{window_s / 3600:.3g} h window): {reason}")
             confidence *= 0.5 + 0.5 * ev["coverage"] / config.min_coverage
         if len(segs) > 1:
             ev["segment_verdicts"] = sorted({d.verdict for _, _, d in seg_diag})
     if verdict != "no-oscillation" and ev["coverage"] < config.min_coverage:
         # any other verdict on a snapshot says what it stands on too
-        reason += (f" (from the {usable_s / 3600:.2g} h of data available of the "
+        reason += (f" (from the {_duration(usable_s)} of data available of the "
                    f"{window_s / 3600:.3g} h window)")
 
     osc_s = sum((b - a) for a, b, _ in episodes) * h
