@@ -44,6 +44,19 @@ def test_invalid_process_type_names_the_loop():
     assert any("(loop PIC400)" in p and "invalid process_type 'sticky'" in p for p in problems)
 
 
+def test_a_level_or_a_flow_named_by_its_kind_is_read_as_its_process_type(tmp_path):
+    path = write(tmp_path, "loop,pv_tag,op_tag,process_type\n"
+                           "LIC1,L.PV,L.OP,Level\nFIC1,F.PV,F.OP, flow\n"
+                           "FIC2,G.PV,G.OP,non_integrating\nPIC1,P.PV,P.OP,pressure\n"
+                           "TIC1,T.PV,T.OP,\n")
+    loops, problems = read_loops_csv(path)
+    assert [l.process_type for l in loops] == ["integrating", "self-regulating",
+                                               "self-regulating", "unknown", "unknown"]
+    # a pressure may integrate or settle: the data decide, and the file is told
+    assert problems == [p for p in problems if "(loop PIC1)" in p] and len(problems) == 1
+    assert "invalid process_type 'pressure'" in problems[0] and "level or flow" in problems[0]
+
+
 def test_duplicate_loop_name_keeps_the_first_and_reports():
     loops, problems = read_loops_csv(DATA / "loops.csv")
     assert [l.loop for l in loops] == ["FIC101", "LIC200", "TIC300", "PIC400"]

@@ -8,6 +8,7 @@ Columns (header names are case-insensitive; aliases in brackets)::
     op_tag (op)                     required column; an empty cell is a problem
     sp_tag (sp), mv_tag (mv), mode_tag (mode)     optional
     process_type                    integrating | self-regulating | unknown
+                                    (level: integrating; flow: self-regulating)
     unit, span, criticality, description          optional
 
 :func:`read_loops_csv` never drops a loop silently. A loop without a PV (or OP)
@@ -37,9 +38,19 @@ from pathlib import Path
 
 from ..plain import printable
 
-__all__ = ["LoopSpec", "RegistryError", "read_loops_csv", "PROCESS_TYPES", "ROLES"]
+__all__ = ["LoopSpec", "RegistryError", "read_loops_csv", "PROCESS_TYPES",
+           "PROCESS_TYPE_ALIASES", "ROLES"]
 
 PROCESS_TYPES = ("integrating", "self-regulating", "unknown")
+#: Process types written as the loop's kind, read as the type they name: a
+#: liquid level integrates the difference of its flows, a flow through a
+#: valve settles. Pressure and temperature are either (a gas volume's
+#: pressure integrates, a liquid line's settles): those stay ``unknown``
+#: and the data's tests decide.
+PROCESS_TYPE_ALIASES = {"level": "integrating", "integrator": "integrating",
+                        "flow": "self-regulating", "self-regulated": "self-regulating",
+                        "selfregulating": "self-regulating",
+                        "non-integrating": "self-regulating", "": "unknown"}
 #: Signal roles of a loop, in the order ``LoopSpec.tags`` lists them.
 ROLES = ("pv", "op", "sp", "mv", "mode")
 #: Longest description kept [characters]; a longer one is shortened, with a problem line.
@@ -77,7 +88,9 @@ class LoopSpec:
         Historian tags of the process variable, controller output, set point,
         measured valve position and controller mode.
     process_type : str
-        ``integrating``, ``self-regulating`` or ``unknown``.
+        ``integrating``, ``self-regulating`` or ``unknown`` (``level`` and
+        ``flow`` in the file are read as the first two,
+        :data:`PROCESS_TYPE_ALIASES`).
     unit : str or None
         Engineering unit of the PV.
     span : float
@@ -196,10 +209,11 @@ def _row_to_spec(row: dict[str, str], where: str) -> tuple[LoopSpec, list[str]]:
         note(f"PV and OP are the same tag {tags['pv']!r}")
 
     raw_type = row.get("process_type", "")
-    ptype = raw_type.lower().replace("_", "-").replace(" ", "-") or "unknown"
+    ptype = raw_type.strip().lower().replace("_", "-").replace(" ", "-")
+    ptype = PROCESS_TYPE_ALIASES.get(ptype, ptype)
     if ptype not in PROCESS_TYPES:
-        note(f"invalid process_type {raw_type!r} (expected one of {', '.join(PROCESS_TYPES)}); "
-             f"using 'unknown'")
+        note(f"invalid process_type {raw_type!r} (expected one of {', '.join(PROCESS_TYPES)}, "
+             f"or level or flow); using 'unknown'")
         ptype = "unknown"
 
     span, ok = _number(row.get("span", ""), math.nan)
