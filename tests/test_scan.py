@@ -168,8 +168,10 @@ def test_a_fast_loop_exported_for_a_few_minutes_is_read_as_its_slower_twin():
     """Five minutes of a fast loop at 0.1 s hold fifty cycles: the record is
     the same, sample for sample, as 100 minutes of a loop twenty times
     slower at 2 s, and is read alike (it was refused: no stretch lasting ten
-    minutes). Where a record has a stretch of ten minutes, shorter ones
-    beside it are still left out."""
+    minutes). Stretches of fewer than 600 samples that last less than ten
+    minutes are still left out: at 1 s they cannot rule out a level's
+    cycle, and minutes of data scattered over a day of bad states say too
+    little."""
     from valvediag.scan.loop import MIN_SEGMENT_S
 
     rng = np.random.default_rng(6)
@@ -192,6 +194,14 @@ def test_a_fast_loop_exported_for_a_few_minutes_is_read_as_its_slower_twin():
     r = analyse_loop(job_for(SPEC, t.size, 2.0), {"pv": frame(t[keep], pv[keep]),
                                                   "op": frame(t[keep], op[keep])})
     assert r.evidence["segments"] == 1
+    # the same five minutes at 0.1 s, but in pieces of 500 samples spread over an
+    # hour; and five minutes at 1 s
+    t = k * 0.1 + np.repeat(np.arange(6) * 600.0, 500)
+    r = analyse_loop(job_for(SPEC, 36000, 0.1), {"pv": frame(t, pv), "op": frame(t, op)})
+    assert r.verdict == "insufficient-data" and "lasting 1 min (600 samples)" in r.reason
+    t = k[:300]
+    r = analyse_loop(job_for(SPEC, 300), {"pv": frame(t, pv[:300]), "op": frame(t, op[:300])})
+    assert r.verdict == "insufficient-data" and "lasting 10 min (600 samples)" in r.reason
 
 
 def test_quiet_loop_is_no_oscillation_and_a_snapshot_says_what_it_covers():
@@ -233,7 +243,7 @@ def test_a_valve_verdict_on_a_snapshot_says_what_it_stands_on():
     (SPEC, {"pv": frame(range(50), [None] * 50), "op": frame(range(50), range(50))}, (),
      "all 50 PV samples of LIC1.PV in the window are bad states (I/O Timeout)"),
     (SPEC, {"pv": frame(range(40), range(40)), "op": frame(range(40), range(40))}, (),
-     "no stretch of usable PV and OP data lasting 1.07 min (64 samples)"),
+     "no stretch of usable PV and OP data lasting 10 min"),
     (SPEC, {"pv": frame([30], [3.0]), "op": frame(range(50), range(50))}, (),
      "PV tag LIC1.PV has a single valid sample from"),
     (SPEC, {"pv": frame(range(50), range(50)), "op": frame(range(50), [40.0] + [None] * 49)},

@@ -40,15 +40,16 @@ from .types import (
 _UTC = dt.timezone.utc
 _log = logging.getLogger(__name__)
 
-#: Shortest segment classified: at least this many grid points and seconds.
-#: Over a few dozen samples noise can pass for a short regular oscillation.
+#: Shortest segment classified: at least this many grid points (over a few
+#: dozen samples noise can pass for a short regular oscillation) ...
 MIN_SEGMENT_SAMPLES = 64
+#: ... and this many seconds (a few minutes at one second cannot rule out a
+#: level's cycle) ...
 MIN_SEGMENT_S = 600.0
-#: In a record none of whose stretches lasts :data:`MIN_SEGMENT_S` (a few
-#: minutes of a fast loop sampled at a fraction of a second, as engineers
-#: export them), the stretches of at least this share of the longest are
-#: analysed instead: the seconds are a level's, not a fast flow's.
-SHORT_RECORD_SHARE = 0.5
+#: ... or this many samples, where they last less: a loop sampled faster
+#: than once a second is a fast one, and a few minutes of it at 0.1 s hold
+#: dozens of its cycles.
+ENOUGH_SAMPLES = 600
 #: Longest gap in a record bridged by a straight line before it is analysed
 #: [s] (at least :data:`~valvediag.analysis.quality.BRIDGE_SAMPLES` samples):
 #: a minute or two missing now and then (a collector's restart, a lost page
@@ -696,8 +697,8 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     lines first (``breaks_bridged`` in the evidence counts the samples
     drawn). The classifier analyses one gap-free segment at a time, so a day
     split by longer gaps is analysed in pieces, those of at least
-    :data:`MIN_SEGMENT_S` (or, where none lasts that long, of at least
-    :data:`SHORT_RECORD_SHARE` of the longest); an oscillation that occupies
+    :data:`MIN_SEGMENT_S` (or :data:`ENOUGH_SAMPLES` samples, where they
+    last less); an oscillation that occupies
     less than about a third of a segment may be missed by the segment's
     classification (the block screen only splits segments found
     oscillating). An unexpected error in the analysis gives the loop
@@ -733,17 +734,10 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 60:.2g} min" if seconds < 3600.0 else f"{seconds / 3600:.2g} h"
 
 
-def _shortest_stretch(aligned: AlignedLoop) -> int:
-    """Fewest grid points of a stretch analysed: :data:`MIN_SEGMENT_S` and
-    :data:`MIN_SEGMENT_SAMPLES`, or, in a record none of whose stretches lasts
-    :data:`MIN_SEGMENT_S` (a short export of a fast loop), half its longest
-    stretch (and :data:`MIN_SEGMENT_SAMPLES`)."""
-    h = aligned.sample_time
-    floor = int(math.ceil(MIN_SEGMENT_S / h))
-    longest = max((b - a for a, b in aligned.segments), default=0)
-    if longest < floor:
-        floor = int(math.ceil(SHORT_RECORD_SHARE * longest))
-    return max(MIN_SEGMENT_SAMPLES, floor)
+def _shortest_stretch(h: float) -> int:
+    """Fewest grid points of a stretch analysed at sample time ``h`` [s]:
+    :data:`MIN_SEGMENT_S`, or :data:`ENOUGH_SAMPLES` where they last less."""
+    return max(MIN_SEGMENT_SAMPLES, min(int(math.ceil(MIN_SEGMENT_S / h)), ENOUGH_SAMPLES))
 
 
 def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
@@ -767,7 +761,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     breaks_bridged += more
     window_s = (job.end - job.start).total_seconds()
     h = aligned.sample_time
-    min_len = _shortest_stretch(aligned)
+    min_len = _shortest_stretch(h)
     segs = [(a, b) for a, b in aligned.segments if b - a >= min_len]
     usable_s = sum(b - a for a, b in segs) * h
     ev: dict = {"problems": list(job.problems), "sample_time_s": h, "segments": len(segs),
