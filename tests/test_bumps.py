@@ -83,6 +83,37 @@ def test_a_tight_level_kept_at_one_sample_a_minute_is_not_read_against_its_kicks
     assert setpoint_bumps(pv[::12], op[::12], sp[::12], 12 * h).found
 
 
+def fast_level(seed, valve="linear", valve_params=None, kc=2.0, ti=25.0, h=1.0, n=14_400):
+    """Four hours of a small, fast level (integrating time 20 s) at 1 s, its set
+    point stepped every few minutes, its load wandering within a minute or two."""
+    rng = np.random.default_rng(seed)
+    sp = alternating_steps(rng, n, every_s=(150.0, 300.0), size=(2.0, 4.0), sample_time=h)
+    t = np.arange(n) * h
+    knots = np.arange(0.0, n * h + 91.0, 90.0)
+    load = np.interp(t, knots, np.cumsum(rng.normal(0.0, 1.0, knots.size)))
+    r = simulate_loop(kc=kc, ti=ti, sample_time=h, n_samples=n, process="integrating",
+                      tau=20.0, valve=valve, valve_params=valve_params, sp=50.0, load=50.0,
+                      load_profile=load, sp_profile=sp, noise_std=0.05, seed=seed)
+    return r.pv, r.op, r.sp, h
+
+
+@pytest.mark.parametrize("seed", [0, 1, 5])
+def test_a_fast_level_is_read_over_its_own_time_not_ten_minutes(seed, monkeypatch):
+    """A level that halves its error within seconds of a step, read over all the
+    minutes between its steps, has its OP's integral answer the load: steps read
+    against the OP (the hazard, asserted with the window in seconds alone). Read
+    over ten half-times, none does; a sticky valve on the same level is found."""
+    import valvediag.analysis.bumps as bumps
+
+    pv, op, sp, h = fast_level(seed)
+    b = setpoint_bumps(pv, op, sp, h)
+    assert b.steps >= 60 and b.against == 0 and b.answered >= b.steps - 1
+    pv_s, op_s, sp_s, _ = fast_level(seed, "kano", {"S": 4.0, "J": 2.0}, kc=1.5, ti=1e12)
+    assert setpoint_bumps(pv_s, op_s, sp_s, h).found
+    monkeypatch.setattr(bumps, "RESPONSE_WINDOWS", 1e9)
+    assert setpoint_bumps(pv, op, sp, h).against >= MIN_BUMPS_AGAINST
+
+
 def test_one_step_against_the_kick_is_not_a_fault():
     for n_against, found in ((1, False), (MIN_BUMPS_AGAINST, True)):
         pv, op, sp, h = level_bending(0, against=lambda i: i < n_against)
