@@ -9,7 +9,7 @@ import polars as pl
 import pytest
 
 from valvediag.analysis.align import align_loop
-from valvediag.analysis.quality import quality_metrics
+from valvediag.analysis.quality import mask_frozen_pv, quality_metrics
 
 UTC = dt.timezone.utc
 T0 = dt.datetime(2024, 1, 1, tzinfo=UTC)
@@ -85,6 +85,28 @@ def test_frozen_sensor_is_detected():
     assert q.longest_frozen_s == pytest.approx(1199.0)
     assert q.frozen_pct == pytest.approx(100 * 1200 / N)
     assert any(i.startswith("PV frozen") for i in q.issues)
+
+
+def test_a_frozen_run_is_cut_out_of_the_record_and_a_coarse_record_kept_whole():
+    t, pv, op = clean_loop()
+    pv = pv.copy()
+    pv[1200:2400] = 51.234   # 20 min of identical values
+    aligned = align_loop({"pv": frame(t, pv), "op": frame(t, op)})
+    masked, n = mask_frozen_pv(aligned, span=100.0)
+    assert n == 1200 and masked.segments == ((0, 1200), (2400, N))
+    assert mask_frozen_pv(masked, span=100.0)[1] == 0
+    # one minute flat is no frozen sensor
+    t, pv, op = clean_loop()
+    pv[100:160] = 50.0
+    aligned = align_loop({"pv": frame(t, pv), "op": frame(t, op)})
+    assert mask_frozen_pv(aligned)[0] is aligned
+    # a quiet PV stored to a coarse grid repeats all through: its 20 flat minutes
+    # are the process standing within a step, and stay
+    rng = np.random.default_rng(1)
+    quiet = np.round(50 + np.cumsum(rng.normal(0, 0.002, N)) + rng.normal(0, 0.01, N), 1)
+    quiet[1200:2400] = quiet[1200]
+    aligned = align_loop({"pv": frame(t, quiet), "op": frame(t, op)})
+    assert mask_frozen_pv(aligned)[0] is aligned
 
 
 def test_short_flat_stretch_is_not_frozen():

@@ -204,6 +204,32 @@ def test_a_fast_loop_exported_for_a_few_minutes_is_read_as_its_slower_twin():
     assert r.verdict == "insufficient-data" and "lasting 10 min (600 samples)" in r.reason
 
 
+def test_a_frozen_pv_under_a_winding_controller_is_cut_out():
+    """A flow's transmitter hangs for 30 min while its PI controller winds the OP
+    on the frozen error: the frozen stretch is left out (the PV standing while
+    the OP ramps, then jumping, is a sticky valve's picture), and the loop
+    reads as it does without the fault."""
+    spec = dataclasses.replace(SPEC, process_type="self-regulating")
+    n, kc, ti = 4 * 3600, 0.5, 20.0
+    t = np.arange(float(n))
+    r = simulate_loop(kc=kc, ti=ti, sample_time=1.0, n_samples=n, process="self-regulating",
+                      tau=10.0, sp=50.0, load_profile=3.0 * np.sign(np.sin(2 * np.pi * t / 120)),
+                      noise_std=0.2, seed=0)
+    pv, op = r.pv.copy(), r.op.copy()
+    k1, k2 = 5000, 6800
+    pv[k1:k2] = pv[k1]
+    e = r.sp[k1:k2] - pv[k1]
+    op[k1:k2] = op[k1] + kc * (e - e[0]) + kc / ti * np.cumsum(e)
+    clean = analyse_loop(job_for(spec, n), {"pv": frame(t, r.pv), "op": frame(t, r.op),
+                                            "sp": frame(t, r.sp)})
+    res = analyse_loop(job_for(spec, n), {"pv": frame(t, pv), "op": frame(t, op),
+                                          "sp": frame(t, r.sp)})
+    assert res.evidence["frozen_masked"] == k2 - k1 and res.evidence["segments"] == 2
+    assert clean.evidence["frozen_masked"] == 0
+    assert res.verdict == clean.verdict == "linear-oscillation"
+    assert any(i.startswith("PV frozen") for i in res.quality["issues"])
+
+
 def test_quiet_loop_is_no_oscillation_and_a_snapshot_says_what_it_covers():
     rng = np.random.default_rng(4)
     t = np.arange(7200.0)

@@ -43,7 +43,7 @@ from .align import AlignedLoop, contiguous_segments, to_epoch_us
 __all__ = ["DataQuality", "quality_metrics", "white_noise_std", "resolved_noise_std",
            "stored_resolution", "stored_points", "record_quantum", "despike",
            "bridge_short_gaps", "bridge_short_breaks", "most_active_window", "longest_run",
-           "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
+           "mask_frozen_pv", "FROZEN_REST_REPEAT", "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
 
 #: Mode texts meaning "the controller is not closing the loop".
 MANUAL_MODES = frozenset({"MAN", "MANUAL", "IMAN", "LO", "OOS", "O/S", "LOCAL", "TRK", "TRACK"})
@@ -193,23 +193,89 @@ def _runs(mask: np.ndarray, min_points: int) -> list[tuple[int, int]]:
     return [(a, b) for a, b in contiguous_segments(mask) if b - a >= min_points]
 
 
-def _frozen(aligned: AlignedLoop, span: float | None) -> tuple[float, float]:
-    """(% of valid PV points in frozen runs, longest identical run [s])."""
+def _flat_runs(aligned: AlignedLoop, span: float | None):
+    """The PV's runs of identical values: (mask of points in any flat run,
+    the runs of at least ``frozen_min_points`` and ``frozen_min_s``)."""
     pv, ok = aligned.pv, aligned.role_valid.get("pv", aligned.valid)
-    if pv.size < 2 or not ok.any():
-        return 0.0, 0.0
-    tol = 1e-9 * span if span and math.isfinite(span) else 0.0
     same = np.zeros(pv.size, bool)
+    if pv.size < 2 or not ok.any():
+        return same, []
+    tol = 1e-9 * span if span and math.isfinite(span) else 0.0
     step = ok[1:] & ok[:-1] & (np.abs(np.diff(pv)) <= tol)
     # a point belongs to a flat run when the step into or out of it is flat
     same[1:] |= step
     same[:-1] |= step
-    runs = contiguous_segments(same)
-    longest = max(((b - a - 1) * aligned.sample_time for a, b in runs), default=0.0)
     min_pts = max(LIMITS["frozen_min_points"],
                   int(math.ceil(LIMITS["frozen_min_s"] / aligned.sample_time)))
-    frozen = sum(b - a for a, b in runs if b - a >= min_pts)
+    return same, [(a, b) for a, b in contiguous_segments(same) if b - a >= min_pts]
+
+
+def _frozen(aligned: AlignedLoop, span: float | None) -> tuple[float, float]:
+    """(% of valid PV points in frozen runs, longest identical run [s])."""
+    ok = aligned.role_valid.get("pv", aligned.valid)
+    same, long_runs = _flat_runs(aligned, span)
+    longest = max(((b - a - 1) * aligned.sample_time for a, b in contiguous_segments(same)),
+                  default=0.0)
+    frozen = sum(b - a for a, b in long_runs)
     return _pct(frozen, ok.sum()), float(longest)
+
+
+#: A frozen run is cut out of the record only where, outside such runs, at
+#: most this share of the PV's consecutive values repeat: a PV stored coarsely
+#: or held by a historian's exception test repeats all through, and its long
+#: flat runs are the process standing within its resolution.
+FROZEN_REST_REPEAT = 0.05
+
+
+def mask_frozen_pv(aligned: AlignedLoop, span: float | None = None
+                   ) -> tuple[AlignedLoop, int]:
+    """Cut the runs of a frozen PV out of a loop's record.
+
+    Parameters
+    ----------
+    aligned : AlignedLoop
+    span : float, optional
+        PV span [PV unit]: values within a billionth of it are identical.
+
+    Returns
+    -------
+    masked : AlignedLoop
+        ``valid`` false over each run of identical PV values lasting at
+        least ``LIMITS['frozen_min_s']`` and ``LIMITS['frozen_min_points']``
+        samples; the original when there is none, or where the rest of the
+        record repeats its values too (:data:`FROZEN_REST_REPEAT`).
+    samples : int
+        Grid samples made invalid.
+
+    Notes
+    -----
+    A transmitter that hangs, or a data server that repeats its last good
+    value, holds the PV exactly while the controller keeps acting on the
+    frozen error: its integral action ramps the OP, and when the value
+    comes back the PV jumps. That is a sticky valve's signature (the PV
+    stands while the OP ramps, then jumps) on a healthy valve. A live
+    measurement with noise does not repeat a value to the last digit for
+    ten minutes; one stored to a coarse grid, or by exception and held
+    between stored values, does so all the time, and is left alone (the
+    quality screen reports it as step-held or coarse). A PV pinned at the
+    end of its range (an over-range level) is cut out too: it says nothing
+    of the valve either.
+    """
+    same, runs = _flat_runs(aligned, span)
+    if not runs:
+        return aligned, 0
+    ok = aligned.role_valid.get("pv", aligned.valid)
+    inside = np.zeros(aligned.n, bool)
+    for a, b in runs:
+        inside[a:b] = True
+    rest = ok & ~inside
+    if rest.sum() < 2 or same[rest].mean() > FROZEN_REST_REPEAT:
+        return aligned, 0
+    valid = aligned.valid & ~inside
+    masked = int(aligned.valid.sum() - valid.sum())
+    if masked == 0:
+        return aligned, 0
+    return dataclasses.replace(aligned, valid=valid, segments=contiguous_segments(valid)), masked
 
 
 def _held_runs(op: np.ndarray, ok: np.ndarray, min_pts: int) -> np.ndarray:

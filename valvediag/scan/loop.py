@@ -16,7 +16,7 @@ from ..analysis.align import AlignedLoop, align_loop, median_spacing, to_epoch_u
 from ..analysis.classify import LAG_DOUBT, LoopDiagnosis, classify_loop
 from ..analysis.oscillation import ACF_STRONG, PERIODIC_FRACTION_MIN, detect_oscillation
 from ..analysis.quality import (BRIDGE_SAMPLES, DataQuality, bridge_short_breaks,
-                                quality_metrics)
+                                mask_frozen_pv, quality_metrics)
 from ..io.registry import LoopSpec
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -753,6 +753,9 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                          max_gap=config.max_gap_s)
     q = quality_metrics(aligned, roles, span=spec.span)
     qd = to_plain(q.as_dict())
+    # a frozen PV (a hung transmitter) under a controller that winds its OP
+    # on the frozen error is a sticky valve's picture: cut out
+    aligned, frozen_masked = mask_frozen_pv(aligned, spec.span)
     # scattered bad samples and short gaps must not cut the record into
     # stretches too short to use (the gaps' limit read once the scattered
     # samples are bridged)
@@ -765,7 +768,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     segs = [(a, b) for a, b in aligned.segments if b - a >= min_len]
     usable_s = sum(b - a for a, b in segs) * h
     ev: dict = {"problems": list(job.problems), "sample_time_s": h, "segments": len(segs),
-                "breaks_bridged": breaks_bridged,
+                "breaks_bridged": breaks_bridged, "frozen_masked": frozen_masked,
                 "usable_s": usable_s, "coverage": usable_s / window_s if window_s else 0.0}
     if not segs:
         issues = "; ".join(q.issues) or "no overlap of valid PV and OP samples"
