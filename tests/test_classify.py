@@ -441,14 +441,15 @@ def test_the_ops_unit_does_not_move_the_verdict(klass, seed, index):
     ("level-healthy", 11, 1),            # set-point steps read as bump tests
     ("flow-stiction-cycle", 10, 7),      # the valve signature's fit of a cycle
 ])
-@pytest.mark.parametrize("skew", [-1, 1])
+@pytest.mark.parametrize("skew", [-5, -1, 1, 5])
 def test_an_op_stored_a_sample_off_the_pv_gets_the_same_verdict(klass, seed, index, skew):
     # the PV and OP tags stored at different scans: the controller's answer
     # to the PV's noise shows the skew, and the OP is drawn back onto the PV's
     # time stamps. Before, the healthy level read every set-point step as a
     # valve that moved against its OP (the loop's sense read the wrong way),
     # and the sticky flow's slips, one sample late against the OP, read as a
-    # linear valve behind a dead time
+    # linear valve behind a dead time. Five samples (read from different
+    # collectors, a few seconds apart) are drawn back too
     loop, pv, op, sp = _study_record(klass, seed, index)
     kw = dict(sample_time=loop.sample_time, process_type=loop.process_type)
     d = classify_loop(pv, op, sp, **kw)

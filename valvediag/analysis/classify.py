@@ -473,18 +473,34 @@ SKEW_CLEAR = 1.25
 #: stored by exception and drawn back by straight lines shows no answer to
 #: the noise in each sample, and its stored points set the lag).
 SKEW_STORED = 0.7
+#: Most samples of skew read either way (a PV and an OP read from different
+#: collectors or clocks: a few seconds apart at one second). Beyond
+#: ``SENSE_SKEW`` samples the answer must also stand :data:`SKEW_CLEAR` times
+#: over its neighbours' (white noise's second differences make them -2/3 of
+#: it, a smooth swing of the correlation about as much).
+DESKEW_MAX = 10
 
 
 def _deskew_op(pv: np.ndarray, op: np.ndarray, mv: np.ndarray | None):
     """The OP (and the valve position with it) drawn back onto the PV's time
-    stamps where the controller's answer to the PV's noise comes a sample or
-    two late or early (:func:`~valvediag.analysis.signature.controller_lag`);
+    stamps where the controller's answer to the PV's noise comes up to
+    :data:`DESKEW_MAX` samples late or early
+    (:func:`~valvediag.analysis.signature.controller_lag`);
     the samples shifted off the record's end are missing. Returns the OP, the
     position and the skew removed [samples]."""
     if stored_points(op).size < SKEW_STORED * np.count_nonzero(np.isfinite(op)):
         return op, mv, 0
-    lag, r = controller_lag(pv, op)
-    if not lag or abs(r[lag + SENSE_SKEW]) < SKEW_CLEAR * abs(r[SENSE_SKEW]):
+    lag, r = controller_lag(pv, op, max_lag=DESKEW_MAX)
+    zero = DESKEW_MAX
+    if lag is not None and abs(lag) > SENSE_SKEW and not (
+            abs(lag) < DESKEW_MAX and abs(r[lag + zero]) >= SKEW_CLEAR * max(
+                abs(r[lag + zero - 1]), abs(r[lag + zero + 1]))):
+        # a far lag counts only as a peak over its neighbours: a smooth swing of
+        # the correlation (a sine's moves, where the noise is small) peaks
+        # anywhere. Else the answer within a couple of samples is read alone
+        lag, r = controller_lag(pv, op)
+        zero = SENSE_SKEW
+    if not lag or abs(r[lag + zero]) < SKEW_CLEAR * abs(r[zero]):
         return op, mv, 0
     gap = np.full(abs(lag), np.nan)
 

@@ -1242,7 +1242,8 @@ def loop_sense(pv, op) -> float:
     return float(np.sign(r[lag + SENSE_SKEW])) if lag is not None else 0.0
 
 
-def controller_lag(pv, op, *, noise_only: bool = False) -> tuple[int | None, np.ndarray]:
+def controller_lag(pv, op, *, noise_only: bool = False,
+                   max_lag: int = SENSE_SKEW) -> tuple[int | None, np.ndarray]:
     """The lag at which the OP answers the PV's noise, and the correlations read.
 
     Parameters
@@ -1256,15 +1257,17 @@ def controller_lag(pv, op, *, noise_only: bool = False) -> tuple[int | None, np.
         once whatever the noise does), and find no answer where either has no
         spread of moves at all (a noise-free OP): the answer to the noise
         alone. Default False: every move counts.
+    max_lag : int
+        Most samples read either way [samples].
 
     Returns
     -------
     lag : int or None
         Samples by which the OP's answer comes after the PV's move it
-        answers, from ``-SENSE_SKEW`` to ``SENSE_SKEW`` (0 where the two
-        tags' time stamps agree); None where no correlation exceeds three
-        standard errors.
-    r : numpy.ndarray, shape (2 SENSE_SKEW + 1,)
+        answers, from ``-max_lag`` to ``max_lag`` (0 where the two tags'
+        time stamps agree); None where no correlation exceeds three standard
+        errors.
+    r : numpy.ndarray, shape (2 max_lag + 1,)
         Minus the correlation of the PV's second difference at ``k`` with the
         OP's at ``k + lag``, for each lag: positive where the PV rises with
         the OP.
@@ -1281,7 +1284,7 @@ def controller_lag(pv, op, *, noise_only: bool = False) -> tuple[int | None, np.
     (drawn back by straight lines between stored points, whose second
     differences are nonzero only there): the stored points set the lag.
     """
-    r = np.zeros(2 * SENSE_SKEW + 1)
+    r = np.zeros(2 * max_lag + 1)
     # second differences: the answer to the noise, without the slow swings
     # of a cycle, whose moves correlate at every lag
     dp = np.diff(np.asarray(pv, dtype=float), 2)
@@ -1303,13 +1306,13 @@ def controller_lag(pv, op, *, noise_only: bool = False) -> tuple[int | None, np.
     if not den > 0:
         return None, r
     n = dp.size
-    for i, lag in enumerate(range(-SENSE_SKEW, SENSE_SKEW + 1)):
+    for i, lag in enumerate(range(-max_lag, max_lag + 1)):
         # the PV's move at k against the OP's at k + lag
         r[i] = -float(dp[max(0, -lag):n - max(0, lag)] @ du[max(0, lag):n - max(0, -lag)]) / den
     i = int(np.argmax(np.abs(r)))
     if not abs(r[i]) > 3.0 / math.sqrt(int(ok.sum())):
         return None, r
-    return i - SENSE_SKEW, r
+    return i - max_lag, r
 
 
 @lru_cache(maxsize=16)
