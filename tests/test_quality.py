@@ -107,6 +107,13 @@ def test_a_frozen_run_is_cut_out_of_the_record_and_a_coarse_record_kept_whole():
     quiet[1200:2400] = quiet[1200]
     aligned = align_loop({"pv": frame(t, quiet), "op": frame(t, op)})
     assert mask_frozen_pv(aligned)[0] is aligned
+    # a PV that moved three times in an hour, held by its export in between:
+    # the rest is too short to say it does not repeat
+    t, pv, op = clean_loop()
+    held = np.repeat([50.0, 50.4, 50.1, 50.6], N // 4)
+    held[[899, 1799, 2699]] += 0.05
+    aligned = align_loop({"pv": frame(t, held), "op": frame(t, op)})
+    assert mask_frozen_pv(aligned)[0] is aligned
 
 
 def test_short_flat_stretch_is_not_frozen():

@@ -205,9 +205,13 @@ def _flat_runs(aligned: AlignedLoop, span: float | None):
     # a point belongs to a flat run when the step into or out of it is flat
     same[1:] |= step
     same[:-1] |= step
-    min_pts = max(LIMITS["frozen_min_points"],
-                  int(math.ceil(LIMITS["frozen_min_s"] / aligned.sample_time)))
+    min_pts = _frozen_points(aligned.sample_time)
     return same, [(a, b) for a, b in contiguous_segments(same) if b - a >= min_pts]
+
+
+def _frozen_points(h: float) -> int:
+    """Fewest samples of a frozen run at sample time ``h`` [s]."""
+    return max(LIMITS["frozen_min_points"], int(math.ceil(LIMITS["frozen_min_s"] / h)))
 
 
 def _frozen(aligned: AlignedLoop, span: float | None) -> tuple[float, float]:
@@ -243,7 +247,8 @@ def mask_frozen_pv(aligned: AlignedLoop, span: float | None = None
         ``valid`` false over each run of identical PV values lasting at
         least ``LIMITS['frozen_min_s']`` and ``LIMITS['frozen_min_points']``
         samples; the original when there is none, or where the rest of the
-        record repeats its values too (:data:`FROZEN_REST_REPEAT`).
+        record repeats its values too (:data:`FROZEN_REST_REPEAT`) or is too
+        short to tell (as short as a frozen run).
     samples : int
         Grid samples made invalid.
 
@@ -269,7 +274,7 @@ def mask_frozen_pv(aligned: AlignedLoop, span: float | None = None
     for a, b in runs:
         inside[a:b] = True
     rest = ok & ~inside
-    if rest.sum() < 2 or same[rest].mean() > FROZEN_REST_REPEAT:
+    if rest.sum() < _frozen_points(aligned.sample_time) or same[rest].mean() > FROZEN_REST_REPEAT:
         return aligned, 0
     valid = aligned.valid & ~inside
     masked = int(aligned.valid.sum() - valid.sum())
