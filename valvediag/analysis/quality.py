@@ -217,6 +217,8 @@ def _frozen_points(h: float) -> int:
 def _frozen(aligned: AlignedLoop, span: float | None) -> tuple[float, float]:
     """(% of valid PV points in frozen runs, longest identical run [s])."""
     ok = aligned.role_valid.get("pv", aligned.valid)
+    if aligned.pv.size < 2 or not ok.any():
+        return 0.0, 0.0
     same, long_runs = _flat_runs(aligned, span)
     longest = max(((b - a - 1) * aligned.sample_time for a, b in contiguous_segments(same)),
                   default=0.0)

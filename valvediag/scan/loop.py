@@ -692,6 +692,9 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     episodes, integrating screen, verdict per episode and per loop, severity.
     A loop without a PV or OP tag, without samples in the window or with only
     bad-state samples is ``insufficient-data`` and the reason names the tag.
+    A frozen PV's runs are cut out first
+    (:func:`~valvediag.analysis.quality.mask_frozen_pv`, ``frozen_masked``
+    in the evidence).
     Gaps of up to :data:`BRIDGE_GAP_S`, and of at most a tenth of the period
     of the oscillation the longest stretch shows, are bridged by straight
     lines first (``breaks_bridged`` in the evidence counts the samples
