@@ -205,8 +205,7 @@ def _flat_runs(aligned: AlignedLoop, span: float | None):
     # a point belongs to a flat run when the step into or out of it is flat
     same[1:] |= step
     same[:-1] |= step
-    min_pts = _frozen_points(aligned.sample_time)
-    return same, [(a, b) for a, b in contiguous_segments(same) if b - a >= min_pts]
+    return same, _runs(same, _frozen_points(aligned.sample_time))
 
 
 def _frozen_points(h: float) -> int:
