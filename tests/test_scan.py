@@ -230,6 +230,28 @@ def test_a_frozen_pv_under_a_winding_controller_is_cut_out():
     assert any(i.startswith("PV frozen") for i in res.quality["issues"])
 
 
+def test_a_dead_response_in_one_stretch_outweighs_a_longer_quiet_one():
+    """A PV that ignores its set point's step and its OP's 60 % travel in a
+    30-minute stretch, after a gap, is a dead response for the loop, though the
+    three hours before it (an OP that barely moved) show nothing: the
+    stretches' quiet verdict was the longest one's."""
+    rng = np.random.default_rng(3)
+    t = np.arange(13800.0)
+    pv = 50 + rng.normal(0, 0.05, t.size)
+    sp = np.where(t >= 12300, 55.0, 50.0)
+    op = 40 + np.cumsum(rng.normal(0, 0.01, t.size))
+    late = t >= 12000
+    e = sp[late] - pv[late]
+    op[late] = np.clip(op[late][0] + (e - e[0]) + np.cumsum(e) / 60.0, 0, 100)
+    keep = (t < 10800) | late                      # 20 minutes missing between
+    spec = dataclasses.replace(SPEC, process_type="self-regulating")
+    r = analyse_loop(job_for(spec, t.size), {"pv": frame(t[keep], pv[keep]),
+                                             "op": frame(t[keep], op[keep]),
+                                             "sp": frame(t[keep], sp[keep])})
+    assert r.evidence["segments"] == 2
+    assert r.verdict == "insufficient-data" and r.reason.startswith("the PV does not answer")
+
+
 def test_quiet_loop_is_no_oscillation_and_a_snapshot_says_what_it_covers():
     rng = np.random.default_rng(4)
     t = np.arange(7200.0)

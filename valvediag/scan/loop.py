@@ -694,7 +694,10 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     bad-state samples is ``insufficient-data`` and the reason names the tag.
     A frozen PV's runs are cut out first
     (:func:`~valvediag.analysis.quality.mask_frozen_pv`, ``frozen_masked``
-    in the evidence).
+    in the evidence). Where no stretch holds an episode, the loop's verdict
+    is its longest stretch's, or, where a stretch reads a dead response (its
+    PV ignored the OP's travel), the longest such stretch's: a shorter
+    stretch's OP may have travelled where the longest one's did not.
     Gaps of up to :data:`BRIDGE_GAP_S`, and of at most a tenth of the period
     of the oscillation the longest stretch shows, are bridged by straight
     lines first (``breaks_bridged`` in the evidence counts the samples
@@ -812,7 +815,10 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
         ev.update(episode_votes={v: round(w / total, 4) for v, w in weights.items()},
                   agreement=round(agreement, 4))
     else:
-        ra, rb, rep = max(seg_diag, key=lambda e: e[1] - e[0])
+        # a stretch whose PV ignored its OP's travel says more than a longer
+        # one that shows nothing (its OP may not have travelled as far)
+        dead = [e for e in seg_diag if e[2].evidence.get("dead_response")]
+        ra, rb, rep = max(dead or seg_diag, key=lambda e: e[1] - e[0])
         verdict, confidence, reason = rep.verdict, rep.confidence, rep.reason
         if verdict == "no-oscillation" and ev["coverage"] < config.min_coverage:
             # a snapshot: say what the verdict covers rather than refuse it
