@@ -756,3 +756,49 @@ def test_valve_events_on_a_whole_record_are_not_outvoted_by_parts_that_find_no_f
                      ScanConfig(window_hours=24))
     assert r.verdict == "stiction", r.reason
     assert f"method: {method}" in r.reason
+
+
+def _a_slip_a_stretch(towards_sp: bool, seed: int = 5):
+    """Four stretches of a flow at set point 50, each 2 h, 20 minutes missing
+    between them (rows absent): quiet, then the PV drifts 1.0 off the set
+    point over 300 s while the OP creeps 1 % and jumps back past it (a slip),
+    or, for a load step, the PV steps away from the set point at a quiet OP
+    and the controller brings it back. Returns (t, pv, op)."""
+    rng = np.random.default_rng(seed)
+    ts, pvs, ops, out = [], [], [], 40.0
+    for i in range(4):
+        side = 1.0 if i % 2 else -1.0
+        if towards_sp:
+            pv = np.r_[np.full(6700, 50.0), np.linspace(50.0, 50.0 + side, 300),
+                       np.full(200, 50.0 - 0.3 * side)]
+            op = np.r_[np.full(6700, out), out - np.linspace(0, side, 300),
+                       np.full(200, out - side)]
+            out -= side
+        else:
+            back = np.exp(-np.arange(300) / 40.0)
+            pv = np.r_[np.full(6900, 50.0), 50.0 + side * 1.2 * back]
+            op = np.r_[np.full(6900, out), out - side * 1.2 * (1.0 - back)]
+        ts.append(i * 8400.0 + np.arange(7200.0))
+        pvs.append(pv + rng.normal(0, 0.02, 7200))
+        ops.append(op + rng.normal(0, 0.01, 7200))
+    return np.concatenate(ts), np.concatenate(pvs), np.concatenate(ops)
+
+
+@pytest.mark.parametrize("towards_sp, verdict", [(True, "stiction"), (False, "no-oscillation")])
+def test_slips_of_a_record_cut_by_gaps_are_counted_over_its_stretches(towards_sp, verdict):
+    # a sticky flow that slipped once in each of four stretches: one slip a
+    # stretch is too few alone, four in the record make the fault (the
+    # stretches were judged one by one before, and the loop read quiet); a
+    # load's steps away from the set point are no slips, in one stretch or four
+    t, pv, op = _a_slip_a_stretch(towards_sp)
+    spec = LoopSpec("FIC1", "FIC1.PV", "FIC1.OP", sp_tag="FIC1.SP",
+                    process_type="self-regulating", span=100.0)
+    r = analyse_loop(LoopJob(spec, T0, T0 + dt.timedelta(hours=24)),
+                     {"pv": frame(t, pv), "op": frame(t, op),
+                      "sp": frame(t, np.full(t.size, 50.0))})
+    assert r.evidence["segments"] == 4
+    assert r.verdict == verdict, r.reason
+    if verdict == "stiction":
+        assert "over 4 stretches, 4 of 4 jumps of the PV are valve events" in r.reason
+        assert "pooled over the record's stretches" in r.reason
+        assert r.evidence["pooled_stretches"] == 4 and r.evidence["from_events"]

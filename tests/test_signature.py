@@ -1,10 +1,13 @@
 """Valve signature: hand-built valve traces (parallelogram, ellipse, slips) and disturbances."""
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.signal import lfilter
 
 from valvediag import classify_loop, simulate_loop
-from valvediag.analysis.signature import (MIN_SLIPS, horch_correlation, stick_slip_events,
+from valvediag.analysis.signature import (MIN_SLIPS, horch_correlation,
+                                          pooled_stick_slip_events, stick_slip_events,
                                           valve_signature)
 from valvediag.models.valves import apply_valve
 
@@ -228,6 +231,47 @@ def test_two_slips_and_no_other_jump_make_a_snapshot_sticky():
     op = np.r_[op[0] + rng.normal(0, 0.01, quiet), op]
     e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=np.full(pv.size, 50.0))
     assert e.consistent == 2 and not e.found, e.reason
+
+
+def test_a_snapshot_is_the_record_exported_not_a_stretch_cut_from_a_day():
+    # two slips in a stretch of 1,000 s: a fault in a 2 h export, not in a
+    # stretch of a day's record that gaps cut out
+    pv, op, sp = _slip_record(n_events=2)
+    for record_s, found in ((None, True), (2 * 3600.0, True), (86_400.0, False)):
+        e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp, record_s=record_s)
+        assert e.consistent == 2 and e.found is found, (record_s, e.reason)
+
+
+def test_slips_of_a_record_cut_by_gaps_are_pooled_over_its_stretches():
+    # three stretches of a day, each with one or two slips: none a fault
+    # alone, all of them together are
+    reads = []
+    for n, seed in ((2, 3), (1, 4), (2, 5)):
+        pv, op, sp = _slip_record(n_events=n, seed=seed)
+        e = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp, record_s=86_400.0)
+        assert not e.found and e.consistent == n, e.reason
+        reads.append(e)
+    p = pooled_stick_slip_events(reads, record_s=86_400.0)
+    assert p.found and p.kind == "stiction" and p.consistent == p.slips == 5, p.reason
+    assert p.reason.startswith("over 3 stretches") and p.travel.size == 5
+    assert p.op_travel == np.median(np.concatenate([r.travel for r in reads]))
+    # load steps away from the set point add jumps that are no valve events
+    pv, op, sp = _slip_record(towards_sp=False, n_events=4)
+    load = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp, record_s=86_400.0)
+    assert load.events >= 3 and load.consistent == 0, load.reason
+    p = pooled_stick_slip_events(reads[:2] + [load], record_s=86_400.0)
+    assert p.consistent == 3 and not p.found, p.reason
+    # a slip and a take-up in two stretches of a snapshot do not agree on a kind
+    pv, op, sp = _takeup_record(n_events=1)
+    up = stick_slip_events(pv, op, 1.0, process="self-regulating", sp=sp, record_s=7200.0)
+    assert up.takeups == 1, up.reason
+    assert not pooled_stick_slip_events([reads[1], up], record_s=7200.0).found
+    assert pooled_stick_slip_events([reads[1], reads[1]], record_s=7200.0).found
+    with pytest.raises(ValueError, match="different processes"):
+        pooled_stick_slip_events([reads[0], dataclasses.replace(up, process="integrating")],
+                                 record_s=7200.0)
+    with pytest.raises(ValueError, match="no stretch"):
+        pooled_stick_slip_events([], record_s=7200.0)
 
 
 def _overshooting_slips(n_events=5, seed=11):

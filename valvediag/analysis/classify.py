@@ -313,6 +313,11 @@ class LoopDiagnosis:
     clock : valvediag.analysis.oscillation.PhaseWander or None
         The swing's timing, where it kept a clock's time and decided the
         verdict.
+    events : tuple of valvediag.analysis.signature.StickSlipEvents
+        The valve events read in the stretch, one reading per process type
+        tried, whether or not they made a fault (a level's kinks that a
+        following valve explains are left out): a record cut by gaps pools
+        them (:func:`~valvediag.analysis.signature.pooled_stick_slip_events`).
     pv, op : numpy.ndarray
         The analysed stretch of data.
     sample_time : float
@@ -335,6 +340,7 @@ class LoopDiagnosis:
     shape: CycleShape | None = field(default=None, repr=False)
     travel: ValveTravel | None = field(default=None, repr=False)
     clock: PhaseWander | None = field(default=None, repr=False)
+    events: tuple = field(default=(), repr=False)
     pv: np.ndarray = field(default=None, repr=False)
     op: np.ndarray = field(default=None, repr=False)
     sample_time: float = 1.0
@@ -516,7 +522,8 @@ def _oscillates(osc: Oscillation) -> bool:
 
 def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "unknown",
                   method: str = "robust", min_cycles: float = 3.0,
-                  pv_compressed: bool = False, mv=None) -> LoopDiagnosis:
+                  pv_compressed: bool = False, mv=None,
+                  record_s: float | None = None) -> LoopDiagnosis:
     """Classify one control loop from its recorded PV and OP.
 
     Parameters
@@ -550,6 +557,11 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         Recorded valve position, same sampling [% of travel]; NaN where
         missing. Read against the OP by
         :func:`~valvediag.analysis.travel.valve_travel`.
+    record_s : float, optional
+        Length of the record this stretch was cut from, where gaps cut it
+        [s]; by default the stretch's own. A flow's two slips make a fault
+        only in a snapshot that short
+        (:func:`~valvediag.analysis.signature.stick_slip_events`).
 
     Returns
     -------
@@ -629,11 +641,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     ev: dict = {"method": method, "samples": int(pv.size)}
     travel = None
     coarse: list[str] = []     # why the PV's rounding hides a cycle's waveform
+    events_read: dict = {}     # valve events read, by process type
 
     def verdict(v, conf, reason, **kw):
         out = dict(process_screen="metadata" if process_type != "unknown" else "unknown",
                    bi=np.nan, period=np.nan, amplitude=np.nan, cycles=0.0, regularity=np.nan,
-                   travel=travel)
+                   travel=travel, events=tuple(events_read.values()))
         out.update(kw)
         if coarse and v in ("stiction", "backlash", "undecided") and not (
                 travel is not None and travel.fault):
@@ -757,7 +770,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         if pv_compressed:
             kinds = tuple(k for k in kinds if k != "integrating")
         for kind in kinds:
-            slips = stick_slip_events(x, u, h, process=kind, sp=ev_sp)
+            slips = stick_slip_events(x, u, h, process=kind, sp=ev_sp, record_s=record_s)
             read[kind] = slips
             if slips.found and slips.consistent < min_events:
                 # too few to make up the cycle: kept as evidence, not a verdict
@@ -775,6 +788,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                 if ratio < SLIP_OVER_FOLLOWING and not bumps.found:
                     ev["kinks_followed"] = dict(slips.as_dict(), ratio=round(ratio, 2))
                     continue
+            events_read[kind] = slips
             if slips.found and slips.consistent >= min_events:
                 ev.update(stick_slip=slips.as_dict(), process_screen=kind, from_events=True)
                 if slips.kind == "undecided" and kind == "self-regulating":

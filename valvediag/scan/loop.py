@@ -15,6 +15,7 @@ import numpy as np
 from ..analysis.align import AlignedLoop, align_loop, median_spacing, to_epoch_us
 from ..analysis.classify import LAG_DOUBT, LoopDiagnosis, classify_loop
 from ..analysis.oscillation import ACF_STRONG, PERIODIC_FRACTION_MIN, detect_oscillation
+from ..analysis.signature import pooled_stick_slip_events
 from ..analysis.quality import (BRIDGE_SAMPLES, DataQuality, bridge_short_breaks,
                                 mask_frozen_pv, quality_metrics)
 from ..io.registry import LoopSpec
@@ -231,12 +232,20 @@ def _active_blocks(Y: np.ndarray, lag: int, amplitude: float) -> np.ndarray:
     return big & (acf > ACTIVE_ACF)
 
 
+def _record_s(aligned: AlignedLoop) -> float:
+    """From the first valid sample of a record to its last [s]: the export's
+    length, whatever gaps cut it into."""
+    segs = aligned.segments
+    return (segs[-1][1] - segs[0][0]) * aligned.sample_time if segs else 0.0
+
+
 def _classify(aligned, a, b, process_type, config, compressed=False) -> LoopDiagnosis:
     sp = aligned.sp[a:b] if aligned.sp is not None else None
     mv = aligned.mv[a:b] if aligned.mv is not None else None
     return classify_loop(aligned.pv[a:b], aligned.op[a:b], sp, sample_time=aligned.sample_time,
                          process_type=process_type, method=config.method,
-                         min_cycles=config.min_cycles, pv_compressed=compressed, mv=mv)
+                         min_cycles=config.min_cycles, pv_compressed=compressed, mv=mv,
+                         record_s=_record_s(aligned))
 
 
 def _is_episode(d: LoopDiagnosis, min_cycles: float) -> bool:
@@ -719,6 +728,33 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                                   "please report this with the loop's data", frames=frames)
 
 
+def _pooled_events(seg_diag, record_s: float, process_type: str
+                   ) -> tuple[str, float, str] | None:
+    """(verdict, confidence, reason) from a flow's valve events pooled over a
+    record's stretches, or None where they make no fault.
+
+    Each stretch read alone may hold too few of the valve's slips (a record
+    cut by gaps); summed over the stretches, the counts are judged as a
+    gap-free record's (:func:`~valvediag.analysis.signature.pooled_stick_slip_events`).
+    Only a self-regulating process's jumps are pooled: a level's kinks are
+    checked against its set-point steps stretch by stretch."""
+    readings = [r for _, _, d in seg_diag if d.verdict in ("no-oscillation", "insufficient-data")
+                for r in d.events if r.process == "self-regulating" and r.events > 0]
+    if len(readings) < 2:
+        return None
+    pooled = pooled_stick_slip_events(readings, record_s=record_s)
+    if not pooled.found:
+        return None
+    what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
+            }.get(pooled.kind, "valve events")
+    src = "loop registry" if process_type != "unknown" else "assumed"
+    conf = (0.5 + 0.4 * min(1.0, pooled.consistent / 10.0)) * \
+        (0.6 if pooled.kind == "undecided" else 1.0)
+    return pooled.kind, conf, (f"{what}: {pooled.reason} (self-regulating process, {src}); "
+                               "method: valve events (slips and take-ups) pooled over the "
+                               "record's stretches")
+
+
 def _bridge_samples(aligned: AlignedLoop) -> int:
     """Longest break between a record's stretches to bridge [samples]: up to
     :data:`BRIDGE_GAP_S`, and :data:`BRIDGE_PERIOD_SHARE` of the period of the
@@ -827,6 +863,11 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
             confidence *= 0.5 + 0.5 * ev["coverage"] / config.min_coverage
         if len(segs) > 1:
             ev["segment_verdicts"] = sorted({d.verdict for _, _, d in seg_diag})
+            pooled = _pooled_events(seg_diag, _record_s(aligned), spec.process_type) \
+                if verdict == "no-oscillation" else None
+            if pooled is not None:
+                verdict, confidence, reason = pooled
+                ev.update(from_events=True, pooled_stretches=len(segs))
     if verdict != "no-oscillation" and ev["coverage"] < config.min_coverage:
         # any other verdict on a snapshot says what it stands on too
         reason += (f" (from the {_duration(usable_s)} of data available of the "
