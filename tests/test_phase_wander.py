@@ -98,3 +98,37 @@ def test_realistic_loads_keep_time_and_valves_do_not(klass, seed, index, clock):
     assert d.verdict == ("linear-oscillation" if clock else "stiction"), d.reason
     if not clock:
         assert pw["wander"] > CLOCK_WANDER
+
+
+def test_the_stretches_of_a_record_cut_by_gaps_are_read_on_one_clock():
+    # four stretches of 25 cycles, 1,234 samples missing between them: too few
+    # crossings each to read the wander, enough together. A clock holds its
+    # phase through the gaps; a limit cycle's wanders on through them, unseen
+    from valvediag.analysis.oscillation import pooled_phase_wander
+
+    rng = np.random.default_rng(5)
+    k = np.arange(4 * int(25 * P) + 3 * 1234)
+    ends = np.cumsum(P * (1.0 + 0.01 * rng.standard_normal(k.size // int(P) + 2)))
+    walk_phase = np.interp(k, np.r_[0.0, ends], np.arange(ends.size + 1.0))
+    starts = [i * (int(25 * P) + 1234) for i in range(4)]
+    for phase, keeps in ((k / P, True), (walk_phase, False)):
+        pv, op = _swing(phase, rng)
+        reads = [_read(pv[s:s + int(25 * P)], op[s:s + int(25 * P)]) for s in starts]
+        assert all(not r.keeps_clock and r.readable and 20 <= r.crossings < MIN_CROSSINGS
+                   for r in reads)
+        pooled = pooled_phase_wander(reads, [float(s) for s in starts])
+        assert pooled.crossings == sum(r.crossings for r in reads)
+        assert pooled.keeps_clock is keeps, pooled.reason
+        # the gaps' cycles are counted: 25 a stretch and 20 or 21 a gap
+        assert pooled.cycle[-1] - pooled.cycle[0] + 1 >= 4 * 24 + 3 * 20
+        if keeps:
+            assert 0.3 <= pooled.wander <= 0.75 and "over 4 stretches" in pooled.reason
+            assert pooled.departures().size == pooled.crossings
+        else:
+            assert pooled.wander > 2.0 and "wanders" in pooled.reason
+    # stretches whose phase cannot be read (noise the loop never saw) are not pooled
+    pv, _ = _swing(k / P, rng)
+    _, op = _swing(k / P, rng, noise=0.0)
+    unseen = [_read(pv[s:s + int(25 * P)], op[s:s + int(25 * P)]) for s in starts]
+    assert not any(r.readable for r in unseen)
+    assert not pooled_phase_wander(unseen, starts).keeps_clock

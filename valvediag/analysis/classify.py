@@ -56,7 +56,7 @@ Every verdict carries a confidence in [0, 1] and its evidence.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -311,8 +311,8 @@ class LoopDiagnosis:
     travel : valvediag.analysis.travel.ValveTravel or None
         What the recorded valve position showed, where one was given.
     clock : valvediag.analysis.oscillation.PhaseWander or None
-        The swing's timing, where it kept a clock's time and decided the
-        verdict.
+        The swing's timing, wherever it was read (it decided the verdict
+        where it kept a clock's time).
     events : tuple of valvediag.analysis.signature.StickSlipEvents
         The valve events read in the stretch, one reading per process type
         tried, whether or not they made a fault (a level's kinks that a
@@ -947,6 +947,9 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return travel_verdict(process_screen=pscreen, shape=shape, **common)
     clock = phase_wander(x, osc, u)
     ev["phase_wander"] = clock.as_dict()
+    # a record cut by gaps pools the stretches' crossings: timed from the
+    # first sample given, not the first usable one
+    common["clock"] = replace(clock, times=clock.times + a * h)
     if clock.keeps_clock and not (travel is not None and travel.fault):
         # a valve's limit cycle is the loop's own oscillation: noise moves its
         # phase for good. One that keeps a clock's time is driven from outside
@@ -955,7 +958,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             f"{clock.reason}: a periodic load from outside the loop (a timer, a machine, a "
             "batch step) drives it, not the valve, whose own limit cycle would wander with "
             "the noise; trace the disturbance; method: the phase's wander over the cycles",
-            process_screen=pscreen, shape=shape, clock=clock, **common)
+            process_screen=pscreen, shape=shape, **common)
     amp_cv = osc.amplitude_variation
     ev["amplitude_variation"] = amp_cv
     if np.isfinite(amp_cv) and amp_cv >= RESONANCE_VARIATION:

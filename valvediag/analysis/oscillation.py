@@ -29,7 +29,7 @@ from .quality import stored_points, white_noise_std
 from .signature import SENSE_SKEW, controller_lag
 
 __all__ = ["Oscillation", "detect_oscillation", "acf_period", "acf_regularity",
-           "regular_oscillation", "PhaseWander", "phase_wander"]
+           "regular_oscillation", "PhaseWander", "phase_wander", "pooled_phase_wander"]
 
 #: Hysteresis band as a fraction of the half peak-to-peak range.
 BAND_FRACTION = 0.2
@@ -609,6 +609,14 @@ class PhaseWander:
         The PV's white noise over its median slope at the crossings [s].
     times : numpy.ndarray
         Crossing times [s from the record's start].
+    readable : bool
+        The noise moves a limit cycle's phase here (enough timing noise and
+        jitter, and the OP answers the PV's noise): the crossings read, too
+        few alone, may be pooled with other stretches'
+        (:func:`pooled_phase_wander`).
+    cycle : numpy.ndarray
+        Cycle number of each crossing time; empty where they follow one
+        another (a stretch without gaps).
     """
 
     keeps_clock: bool
@@ -618,6 +626,8 @@ class PhaseWander:
     jitter: float = float("nan")
     timing_noise: float = float("nan")
     times: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    readable: bool = False
+    cycle: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
 
     def as_dict(self) -> dict:
         """The figures as plain types."""
@@ -635,8 +645,12 @@ class PhaseWander:
         t = np.asarray(self.times, dtype=float)
         if t.size < 3:
             return np.zeros(0)
-        k = np.arange(t.size)
+        k = self._cycles()
         return t - np.polyval(np.polyfit(k, t, 1), k)
+
+    def _cycles(self) -> np.ndarray:
+        return np.asarray(self.cycle, dtype=float) if np.size(self.cycle) else \
+            np.arange(np.size(self.times), dtype=float)
 
     def plot(self, ax=None):
         """The crossings' departure from the best steady clock against the cycle count.
@@ -654,7 +668,7 @@ class PhaseWander:
             _, ax = plt.subplots(figsize=(9, 3))
         dev = self.departures()
         if dev.size:
-            ax.plot(np.arange(dev.size), dev, ".-", lw=0.6, ms=3, color="C0")
+            ax.plot(self._cycles(), dev, ".-", lw=0.6, ms=3, color="C0")
             ax.axhline(0.0, color="0.5", lw=0.6)
         ax.set_xlabel("cycle")
         ax.set_ylabel("crossing minus steady clock [s]")
@@ -769,16 +783,18 @@ def phase_wander(pv, osc: Oscillation, op=None) -> PhaseWander:
     if up.size:
         j = np.searchsorted(up, enter, side="right") - 1
         k = up[j[(j >= 0) & (up[np.maximum(j, 0)] > prev)]]
-    if k.size < MIN_CROSSINGS:
-        return PhaseWander(False, f"{k.size} upward crossings, fewer than {MIN_CROSSINGS}: "
-                           "too few to read the phase's wander", crossings=int(k.size))
+    few = (f"{k.size} upward crossings, fewer than {MIN_CROSSINGS}: too few to read the "
+           "phase's wander")
+    if k.size < 3:
+        return PhaseWander(False, few, crossings=int(k.size))
     a, b = ys[k - 1], ys[k]
     t = (k - 1) + a / (a - b)                                     # [samples]
     slope = float(np.median(b - a))
     d = np.diff(t)
     like = np.abs(d / np.median(d) - 1.0) <= 0.4
     if not like.any():
-        return PhaseWander(False, "no two periods alike: no clock to read", crossings=int(k.size))
+        return PhaseWander(False, few if k.size < MIN_CROSSINGS else
+                           "no two periods alike: no clock to read", crossings=int(k.size))
     # the longest run of like periods: a missed or extra crossing is no wander
     edges = np.flatnonzero(np.diff(np.r_[0, like.astype(np.int8), 0]))
     s0, s1 = edges[::2], edges[1::2]
@@ -790,22 +806,24 @@ def phase_wander(pv, osc: Oscillation, op=None) -> PhaseWander:
     d = np.diff(t)
     common = dict(crossings=n, jitter=float(np.std(d)) * h if d.size else np.nan,
                   timing_noise=q * h, times=t * h)
-    if n < MIN_CROSSINGS:
-        return PhaseWander(False, f"{n} upward crossings in a run of like cycles, fewer than "
-                           f"{MIN_CROSSINGS}", **common)
+    unread = None
     if not (np.isfinite(q) and q >= MIN_TIMING_NOISE) or not np.std(d) >= MIN_JITTER:
-        return PhaseWander(False, "too little noise to move the phase of a limit cycle: "
-                           "its wander is not read", **common)
-    raw = stored_points(x).size >= STORED_SHARE * np.count_nonzero(np.isfinite(x))
-    if op is not None and raw:
+        unread = "too little noise to move the phase of a limit cycle: its wander is not read"
+    elif op is not None and stored_points(x).size >= STORED_SHARE * np.count_nonzero(
+            np.isfinite(x)):
         lag, r = controller_lag(x, op, noise_only=True)
         if lag is None or abs(r[lag + SENSE_SKEW]) < NOISE_ANSWER:
-            return PhaseWander(False, "the OP does not answer the PV's noise, which then moves "
-                               "no limit cycle's phase: its wander is not read", **common)
-    kk = np.arange(n, dtype=float)
-    resid = t - np.polyval(np.polyfit(kk, t, 1), kk)
-    wander = float(np.var(resid) / np.var(d))
-    keeps = wander <= CLOCK_WANDER or wander <= CLOCK_SHARE * n / 15.0
+            unread = ("the OP does not answer the PV's noise, which then moves no limit "
+                      "cycle's phase: its wander is not read")
+    if n < MIN_CROSSINGS:
+        if k.size < MIN_CROSSINGS:
+            common["crossings"] = int(k.size)
+        return PhaseWander(False, few if k.size < MIN_CROSSINGS else
+                           f"{n} upward crossings in a run of like cycles, fewer than "
+                           f"{MIN_CROSSINGS}", readable=unread is None, **common)
+    if unread is not None:
+        return PhaseWander(False, unread, **common)
+    wander, keeps = _clock_reading(t, np.arange(n, dtype=float), d)
     if keeps:
         why = (f"the oscillation keeps time like a clock over {n} cycles (its crossings "
                f"scatter {wander:.2f} times the periods' variance about a steady clock, where "
@@ -813,6 +831,86 @@ def phase_wander(pv, osc: Oscillation, op=None) -> PhaseWander:
     else:
         why = (f"the oscillation's phase wanders ({wander:.2f} times the periods' variance "
                f"over {n} cycles), as a limit cycle's does")
+    return PhaseWander(keeps, why, wander=wander, readable=True, **common)
+
+
+def _clock_reading(t: np.ndarray, k: np.ndarray, d: np.ndarray) -> tuple[float, bool]:
+    """(wander, keeps time) of crossing times ``t`` at cycle numbers ``k``,
+    against the periods ``d`` read between consecutive crossings."""
+    resid = t - np.polyval(np.polyfit(k, t, 1), k)
+    wander = float(np.var(resid) / np.var(d))
+    span = float(k[-1] - k[0] + 1)
+    return wander, bool(wander <= CLOCK_WANDER or wander <= CLOCK_SHARE * span / 15.0)
+
+
+def pooled_phase_wander(readings, starts_s) -> PhaseWander:
+    """Read whether an oscillation keeps a clock's time over the stretches of a record cut by gaps.
+
+    Parameters
+    ----------
+    readings : sequence of PhaseWander
+        :func:`phase_wander` of each stretch.
+    starts_s : sequence of float
+        Each stretch's first sample, in seconds from a common origin [s].
+
+    Returns
+    -------
+    PhaseWander
+        Over the stretches whose phase can be read (``readable``), their
+        crossing times on the common clock, numbered by cycle across the
+        gaps (``cycle``); ``keeps_clock`` as :func:`phase_wander` decides it,
+        over :data:`MIN_CROSSINGS` crossings or more in all.
+
+    Notes
+    -----
+    A clock outside the loop holds its phase through a gap in the record; a
+    limit cycle's phase wanders on through it, unseen. Each gap is counted
+    as the whole number of median periods nearest to it, and the crossings
+    of all the stretches are fitted with one steady clock; the wander is
+    read as over a gap-free record, and the random walk's expected wander
+    grows with the cycles spanned, gaps included. A stretch whose periods'
+    median differs from the pooled one by more than 40 % is left out (another
+    oscillation). A gap over which a limit cycle's phase drifts by more than
+    half a period is counted a cycle off, which hides part of that drift:
+    over a gap of ``m`` cycles the drift is about ``sqrt(m)`` times the
+    periods' jitter, half a period only where the jitter is large, and then
+    the crossings within each stretch wander too.
+    """
+    use = sorted(((float(s), r) for r, s in zip(readings, starts_s)
+                  if r.readable and np.size(r.times) >= 3), key=lambda e: e[0])
+    if len(use) < 2:
+        return PhaseWander(False, "fewer than two stretches whose phase can be read")
+    med = [float(np.median(np.diff(r.times))) for _, r in use]
+    period = float(np.median(np.concatenate([np.diff(r.times) for _, r in use])))
+    use = [e for e, m in zip(use, med) if abs(m / period - 1.0) <= 0.4]
+    if len(use) < 2:
+        return PhaseWander(False, "the stretches do not cycle at one period")
+    times, cycles, periods = [], [], []
+    k0, last = 0, None
+    for s, r in use:
+        t = s + np.asarray(r.times, dtype=float)
+        if last is not None:
+            k0 += max(1, int(round((t[0] - last) / period)))
+        times.append(t)
+        cycles.append(k0 + np.arange(t.size))
+        periods.append(np.diff(t))
+        k0, last = int(cycles[-1][-1]), float(t[-1])
+    t, k, d = np.concatenate(times), np.concatenate(cycles).astype(float), np.concatenate(periods)
+    common = dict(crossings=int(t.size), jitter=float(np.std(d)), times=t, cycle=k,
+                  timing_noise=float(np.median([r.timing_noise for _, r in use])), readable=True)
+    if t.size < MIN_CROSSINGS:
+        return PhaseWander(False, f"{t.size} upward crossings over {len(use)} stretches, fewer "
+                           f"than {MIN_CROSSINGS}", **common)
+    wander, keeps = _clock_reading(t, k, d)
+    span = int(k[-1] - k[0] + 1)
+    if keeps:
+        why = (f"over {len(use)} stretches of a record cut by gaps, the oscillation keeps time "
+               f"like a clock over {span} cycles ({t.size} crossings read; they scatter "
+               f"{wander:.2f} times the periods' variance about one steady clock, where a limit "
+               f"cycle's phase would wander about {span / 15:.0f} times)")
+    else:
+        why = (f"over {len(use)} stretches, the oscillation's phase wanders ({wander:.2f} times "
+               f"the periods' variance over {span} cycles), as a limit cycle's does")
     return PhaseWander(keeps, why, wander=wander, **common)
 
 

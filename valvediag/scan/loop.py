@@ -14,7 +14,8 @@ import numpy as np
 
 from ..analysis.align import AlignedLoop, align_loop, median_spacing, to_epoch_us
 from ..analysis.classify import LAG_DOUBT, LoopDiagnosis, classify_loop
-from ..analysis.oscillation import ACF_STRONG, PERIODIC_FRACTION_MIN, detect_oscillation
+from ..analysis.oscillation import (ACF_STRONG, MIN_CROSSINGS, PERIODIC_FRACTION_MIN, PhaseWander,
+                                   detect_oscillation, pooled_phase_wander)
 from ..analysis.signature import pooled_stick_slip_events
 from ..analysis.quality import (BRIDGE_SAMPLES, DataQuality, bridge_short_breaks,
                                 mask_frozen_pv, quality_metrics)
@@ -25,7 +26,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 
 from ..plain import to_plain
-from ..verdicts import ACTION_VERDICTS, EPISODE_VERDICTS, VALVE_FAULTS, rank_position
+from ..verdicts import (ACTION_VERDICTS, EPISODE_VERDICTS, VALVE_FAULTS, VALVE_NONLINEARITY,
+                        rank_position)
 from .plant import severity
 from .types import (
     SPARK_BUCKETS,
@@ -78,6 +80,10 @@ COMPRESSION_PENALTY = (0.9, 0.7)
 MIN_RAW_PER_CYCLE = 10.0
 #: Loops read from the store in one query by :func:`analyse_stored_loops` [-].
 READ_LOOPS = 10
+#: Confidence of a loop read as driven by a clock over the stretches of a
+#: record cut by gaps (one stretch's reading is 0.85 times its data's
+#: confidence: the pooled one counts the gaps' cycles).
+POOLED_CLOCK_CONFIDENCE = 0.75
 #: The loop model's lag and the lag behind the Backlash Index's turns agree
 #: within this factor when a valve slips behind a lag (:func:`lags_agree`).
 LAG_AGREEMENT = 1.5
@@ -755,6 +761,27 @@ def _pooled_events(seg_diag, record_s: float, process_type: str
                                "record's stretches")
 
 
+def _pooled_clock(seg_diag, h: float) -> PhaseWander | None:
+    """The phase's wander read over a record's stretches, or None.
+
+    Where gaps cut a record into stretches too short to read the phase's
+    wander alone (fewer than :data:`~valvediag.analysis.oscillation.MIN_CROSSINGS`
+    crossings each), their crossings are pooled on the record's clock
+    (:func:`~valvediag.analysis.oscillation.pooled_phase_wander`). None where
+    a stretch read alone wanders (a limit cycle), where the recorded valve
+    position shows a fault, or where fewer than two stretches have their
+    phase read."""
+    clocks = [(d.clock, a * h) for a, _, d in seg_diag if d.clock is not None]
+    if any(c.readable and c.crossings >= MIN_CROSSINGS and not c.keeps_clock
+           for c, _ in clocks):
+        return None
+    if any(d.travel is not None and d.travel.fault for _, _, d in seg_diag):
+        return None
+    if sum(c.readable for c, _ in clocks) < 2:
+        return None
+    return pooled_phase_wander([c for c, _ in clocks], [s for _, s in clocks])
+
+
 def _bridge_samples(aligned: AlignedLoop) -> int:
     """Longest break between a record's stretches to bridge [samples]: up to
     :data:`BRIDGE_GAP_S`, and :data:`BRIDGE_PERIOD_SHARE` of the period of the
@@ -850,6 +877,21 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
             reason += f" (episodes disagree: {verdict} {100 * agreement:.0f}%, {others})"
         ev.update(episode_votes={v: round(w / total, 4) for v, w in weights.items()},
                   agreement=round(agreement, 4))
+        clock = _pooled_clock(seg_diag, h) \
+            if verdict in VALVE_NONLINEARITY and len(segs) > 1 else None
+        if clock is not None:
+            ev["pooled_phase_wander"] = clock.as_dict()
+        if clock is not None and clock.keeps_clock:
+            # a load that a clock drives keeps its phase through the gaps
+            verdict, confidence = "linear-oscillation", POOLED_CLOCK_CONFIDENCE
+            reason = (f"{clock.reason}: a periodic load from outside the loop drives it, not "
+                      "the valve, whose own limit cycle would wander with the noise; trace the "
+                      "disturbance; method: the phase's wander over the cycles of the record's "
+                      f"stretches. Read stretch by stretch: {reason}")
+            rep = dataclasses.replace(rep, clock=clock)
+            episodes = [(a, b, dataclasses.replace(d, verdict=verdict))
+                        if d.verdict in VALVE_NONLINEARITY else (a, b, d)
+                        for a, b, d in episodes]
     else:
         # a stretch whose PV ignored its OP's travel says more than a longer
         # one that shows nothing (its OP may not have travelled as far)
