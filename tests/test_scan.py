@@ -834,3 +834,28 @@ def test_a_clock_driven_load_is_read_over_the_stretches_of_a_record_cut_by_gaps(
         assert all(e.verdict == verdict for e in r.episodes)
     else:
         assert not pooled["keeps_clock"] and pooled["wander"] > 2.0
+
+
+def test_a_levels_kinks_are_counted_over_the_stretches_of_a_record_cut_by_gaps():
+    # a sticky level without a cycle (the realistic benchmark's study draw
+    # 13-1) with three gaps of 10-30 minutes: each stretch holds too few of
+    # its kinks, the day holds enough (it read no-oscillation before)
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    klass = "level-stiction-events"
+    loop = draw_loop(klass, np.random.default_rng([13, list(CLASSES).index(klass), 1]))
+    t = np.arange(loop.pv.size) * loop.sample_time
+    cut = np.random.default_rng([13, 1, 7])
+    keep = np.ones(t.size, bool)
+    for start, length in [(cut.uniform(0, t[-1]), cut.uniform(600, 1800)) for _ in range(3)]:
+        keep &= ~((t >= start) & (t < start + length))
+    spec = LoopSpec("L1", "L1.PV", "L1.OP", sp_tag="L1.SP", process_type="integrating",
+                    span=100.0)
+    r = analyse_loop(job_for(spec, loop.pv.size, loop.sample_time),
+                     {k: frame(t[keep], v[keep]) for k, v in
+                      (("pv", loop.pv), ("op", loop.op), ("sp", loop.sp))},
+                     ScanConfig(window_hours=24))
+    assert r.evidence["segments"] >= 3
+    assert r.verdict == "stiction", r.reason
+    assert "jumps of the slope of the PV are valve events" in r.reason
+    assert "pooled over the record's stretches" in r.reason

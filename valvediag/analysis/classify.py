@@ -776,17 +776,21 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                 # too few to make up the cycle: kept as evidence, not a verdict
                 ev["stick_slip_too_few"] = dict(slips.as_dict(), process=kind,
                                                 needed=round(float(min_events), 1))
-            if slips.found and kind == "integrating" and ev_sp is not None:
+            if kind == "integrating" and ev_sp is not None and slips.consistent > 0:
                 # a valve that follows the OP kinks a level by about its gain
                 # (read at the set-point steps) times the OP's move: no slip
+                # (read on kinks too few for a fault too: a record cut by gaps
+                # pools its stretches' kinks)
                 bumps = level_bumps()
                 ratio = kinks_over_following(slips, bumps)
-                ev["setpoint_bumps"] = dict(bumps.as_dict(),
-                                            kinks_over_following=round(ratio, 2))
+                if slips.found:
+                    ev["setpoint_bumps"] = dict(bumps.as_dict(),
+                                                kinks_over_following=round(ratio, 2))
                 # a valve that held through the set-point kicks does not follow: its
                 # gain read at the steps is a slipping valve's, and the ratio errs low
                 if ratio < SLIP_OVER_FOLLOWING and not bumps.found:
-                    ev["kinks_followed"] = dict(slips.as_dict(), ratio=round(ratio, 2))
+                    if slips.found:
+                        ev["kinks_followed"] = dict(slips.as_dict(), ratio=round(ratio, 2))
                     continue
             events_read[kind] = slips
             if slips.found and slips.consistent >= min_events:

@@ -736,29 +736,34 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
 
 def _pooled_events(seg_diag, record_s: float, process_type: str
                    ) -> tuple[str, float, str] | None:
-    """(verdict, confidence, reason) from a flow's valve events pooled over a
+    """(verdict, confidence, reason) from a valve's events pooled over a
     record's stretches, or None where they make no fault.
 
     Each stretch read alone may hold too few of the valve's slips (a record
     cut by gaps); summed over the stretches, the counts are judged as a
-    gap-free record's (:func:`~valvediag.analysis.signature.pooled_stick_slip_events`).
-    Only a self-regulating process's jumps are pooled: a level's kinks are
-    checked against its set-point steps stretch by stretch."""
-    readings = [r for _, _, d in seg_diag if d.verdict in ("no-oscillation", "insufficient-data")
-                for r in d.events if r.process == "self-regulating" and r.events > 0]
-    if len(readings) < 2:
-        return None
-    pooled = pooled_stick_slip_events(readings, record_s=record_s)
-    if not pooled.found:
-        return None
-    what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
-            }.get(pooled.kind, "valve events")
-    src = "loop registry" if process_type != "unknown" else "assumed"
-    conf = (0.5 + 0.4 * min(1.0, pooled.consistent / 10.0)) * \
-        (0.6 if pooled.kind == "undecided" else 1.0)
-    return pooled.kind, conf, (f"{what}: {pooled.reason} (self-regulating process, {src}); "
-                               "method: valve events (slips and take-ups) pooled over the "
-                               "record's stretches")
+    gap-free record's (:func:`~valvediag.analysis.signature.pooled_stick_slip_events`),
+    a flow's jumps and a level's kinks apart. A level's kinks that a valve
+    following the OP explains (read against each stretch's set-point steps)
+    are not counted."""
+    quiet = [d for _, _, d in seg_diag if d.verdict in ("no-oscillation", "insufficient-data")]
+    for process in ("self-regulating", "integrating"):
+        readings = [r for d in quiet for r in d.events if r.process == process and r.events > 0]
+        if len(readings) < 2:
+            continue
+        pooled = pooled_stick_slip_events(readings, record_s=record_s)
+        if not pooled.found:
+            continue
+        what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
+                }.get(pooled.kind, "valve events")
+        src = "loop registry" if process_type != "unknown" else \
+            "data test: the OP after the set-point steps" if process == "integrating" \
+            else "assumed"
+        conf = (0.5 + 0.4 * min(1.0, pooled.consistent / 10.0)) * \
+            (0.6 if pooled.kind == "undecided" else 1.0)
+        return pooled.kind, conf, (f"{what}: {pooled.reason} ({process} process, {src}); "
+                                   "method: valve events (slips and take-ups) pooled over the "
+                                   "record's stretches")
+    return None
 
 
 def _pooled_clock(seg_diag, h: float) -> PhaseWander | None:
