@@ -277,3 +277,28 @@ def test_a_loose_flow_valve_named_by_its_turns_is_sized_from_them():
     assert rests["by_turns"] and rests["turn_travel_spread"] <= TURN_TRAVEL_SPREAD
     assert r.size["DB"] == pytest.approx(loop.params["DB"], rel=0.15)
     assert "turned at a fixed travel" in r.size["reason"]
+
+
+def test_a_cascades_wandering_set_point_does_not_bar_the_legs():
+    # the inner flow loop of a cascade: its set point, the outer loop's
+    # output, wanders by about a percent over tens of minutes and moves the
+    # PV only through the valve. Its legs were all barred (the set point not
+    # steady); read through, a loose valve shows its rests, over four draws
+    # at least half the time, and a valve that follows the OP never
+    n = 4 * 3600
+    t = np.arange(n, dtype=float)
+    wander = 0.4 * np.sin(2 * np.pi * t / 2400.0) + 0.3 * np.sin(2 * np.pi * t / 5100.0 + 1.0)
+    found = {"backlash": 0, "linear": 0}
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        knots = np.arange(0.0, n + 300.0, 300.0)
+        load = np.interp(t, knots, np.cumsum(rng.normal(0, 2.0, knots.size)))
+        for valve, params in (("backlash", {"DB": 4.0}), ("linear", None)):
+            sim = simulate_loop(process="self-regulating", tau=20.0, kc=0.4, ti=60.0, sp=50.0,
+                                sample_time=1.0, n_samples=n, valve=valve, valve_params=params,
+                                noise_std=0.05, load_profile=load, sp_profile=wander, seed=seed)
+            assert np.ptp(sim.sp) > 1.0
+            r = reversal_rests(sim.pv, sim.op, 1.0, sp=sim.sp)
+            assert r.legs >= 5, r.reason
+            found[valve] += r.found
+    assert found["backlash"] >= 2 and found["linear"] == 0, found

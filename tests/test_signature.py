@@ -673,3 +673,33 @@ def test_a_sticky_valves_creeps_are_read_through_an_op_stored_by_swinging_door()
     assert e.found and e.kind == "stiction" and e.slips >= 5, e.reason
     d = classify_loop(pv, op, sp, sample_time=1.0, process_type="self-regulating")
     assert d.verdict == "stiction" and "stick-slip events" in d.reason, d.reason
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_cascades_inner_flow_slips_while_its_set_point_wanders(seed):
+    # the inner flow loop of a cascade: its set point is the outer loop's
+    # output and wanders by about a percent over tens of minutes. A sticky
+    # valve's slips still bring the PV back towards it at once (none was read
+    # before: any move of the set point barred a jump); a valve that follows
+    # the OP makes none
+    rng = np.random.default_rng(seed)
+    n = 4 * 3600
+    t = np.arange(n, dtype=float)
+    knots = np.arange(0.0, n + 900.0, 900.0)
+    load = np.interp(t, knots, np.cumsum(rng.normal(0, 1.5, knots.size)))
+    wander = 0.4 * np.sin(2 * np.pi * t / 2400.0) + 0.3 * np.sin(2 * np.pi * t / 5100.0 + 1.0)
+    for valve, params in (("kano", {"S": 4.0, "J": 3.0}), ("linear", None)):
+        sim = simulate_loop(process="self-regulating", tau=20.0, kc=0.2, ti=200.0, sp=50.0,
+                            sample_time=1.0, n_samples=n, valve=valve, valve_params=params,
+                            noise_std=0.05, valve_noise_band=0.06, load_profile=load,
+                            sp_profile=wander, seed=seed)
+        assert np.ptp(sim.sp) > 1.0
+        e = stick_slip_events(sim.pv, sim.op, 1.0, process="self-regulating", sp=sim.sp)
+        d = classify_loop(sim.pv, sim.op, sim.sp, sample_time=1.0,
+                          process_type="self-regulating")
+        if valve == "kano":
+            assert e.found and e.kind == "stiction" and e.slips >= 2, e.reason
+            assert d.verdict == "stiction", d.reason
+        else:
+            assert not e.found, e.reason
+            assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason

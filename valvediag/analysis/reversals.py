@@ -323,7 +323,9 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
       PV back without the OP moving can pass for a take-up; the valve
       events (:func:`~valvediag.analysis.signature.stick_slip_events`),
       which read slips, come first;
-    * a cascade's set point moves at every sample (no leg is read);
+    * a set point that steps within a leg (the leg is not read); a
+      cascade's, which wanders by less than three noise standard deviations
+      of the PV over the smoothing window, is read through;
     * the OP is stored by a swinging door wider than its noise: its noise
       is then read at its stored resolution
       (:func:`~valvediag.analysis.quality.resolved_noise_std`), and a rest
@@ -382,7 +384,11 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
     # every excursion: reversal, turn, travel, the leg's travel, gains, a rest?
     turned = []
     for a, b in zip(turns[:MAX_LEGS], turns[1:MAX_LEGS + 1]):
-        if b - a < 2 * MIN_FIT or (sp is not None and not np.ptp(sp[a:b]) <= 3.0 * pv_noise):
+        # a set point that steps in the leg kicks the OP and the PV with it; a
+        # cascade's, the outer loop's output, wanders by less than the noise
+        # over the smoothing window and moves the PV only through the valve
+        if b - a < 2 * MIN_FIT or (sp is not None and not np.all(
+                np.abs(sp[a + m:b] - sp[a:b - m]) <= 3.0 * pv_noise)):
             continue
         legs += 1
         d = 1.0 if ops[b] > ops[a] else -1.0

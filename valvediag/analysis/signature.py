@@ -941,7 +941,10 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
     correct it, to no effect; then the valve slips and the PV jumps
     *towards the set point*. A jump counts as a slip when
 
-    * the set point did not move over the stretch before it and during it;
+    * the set point did not step over the stretch before it and during it
+      (over any ``L`` samples it moved by less than a quarter of the jump: a
+      cascade's set point, the outer loop's output, wanders and is read
+      through; a step moves the PV on its own);
     * the OP moved by more than its noise band over that stretch;
     * the control error had grown over that stretch, or stood beyond the
       noise on one side of the set point all through it (a wandering load
@@ -1250,7 +1253,12 @@ def _slips(y, op, err, sp, L, thr, band, err_min):
         e_start = float(np.mean(err[a:a + q]))
         e_before = float(np.mean(err[k - q:k + 1]))
         travel[i] = op[k] - op[a]
-        sp_still = np.ptp(sp[a:min(k + L + 1, n)]) <= sp_tol
+        # the set point did not step over the stretch or the jump: a step
+        # moves the PV on its own, where a cascade's set point (the outer
+        # loop's output) wanders by less than the jump over its step
+        s = sp[a:min(k + L + 1, n)]
+        sp_still = s.size <= L or float(np.max(np.abs(s[L:] - s[:-L]))) <= max(
+            sp_tol, abs(d[k]) / 4.0)
         # the valve held the PV off its set point: the error grew, or it stood
         # beyond the noise on one side all the while (a wandering load can
         # shrink the error a stuck valve leaves, but not bring the PV back)
