@@ -32,7 +32,8 @@ test; that change redrew loops in every set once more.
 
 Usage: python benchmarks/bench_realistic.py [--loops N] [--set dev|dev2|heldout|all] [--workers W]
        [--classes C1,C2] [--misses] [--evidence FILE] [--valve-position]
-       [--reverse-acting] [--op-door DEV] [--pv-decimals N]
+       [--reverse-acting] [--op-door DEV] [--pv-decimals N] [--cascade] [--gaps N]
+       [--seeds A-B]
 
 ``--valve-position`` gives the scan each loop's valve position as a
 positioner would report it (``SynthLoop.mv``: the simulated position with
@@ -62,6 +63,15 @@ point turned about the middle of the span (``100 - x``), the OP the same.
 That is the record of the same loop on a valve that acts the other way (a
 level on its outlet valve, whose controller is reverse-acting), and nothing
 physical tells the two apart; it prints the loops whose verdicts differ.
+
+``--cascade`` draws the flow classes as a cascade's inner loops: the set
+point, the outer loop's output, wanders as three sines of 0.1-0.5 % with
+periods of 20-120 minutes (``draw_loop(..., cascade=True)``); the loops are
+otherwise the same draws. ``--gaps N`` cuts N gaps of 10-30 minutes at
+random places out of every loop's record (rows absent from every tag, as a
+collector that was down leaves them). ``--seeds A-B`` draws study seeds
+(not 1-3) instead of the named sets, and prints them all together too: the
+study draws on which hazards of real records are measured.
 
 ``--evidence FILE`` writes one JSON line per loop of the development sets:
 its class, index and seed, truth and verdict, what was simulated (valve,
@@ -105,18 +115,38 @@ def _frames(loop, with_position=False):
     return out
 
 
+def _cut_gaps(frames, duration_s: float, gaps: int, rng) -> dict:
+    """The frames with ``gaps`` stretches of 10-30 minutes at random places
+    missing from every tag (rows absent, as a collector that was down leaves
+    them)."""
+    import polars as pl
+
+    cuts = [(float(rng.uniform(0, duration_s)), float(rng.uniform(600, 1800)))
+            for _ in range(gaps)]
+    out = {}
+    for role, f in frames.items():
+        sec = (f["ts"] - T0).dt.total_seconds()
+        keep = pl.lit(True)
+        for a, length in cuts:
+            keep = keep & ~((sec >= a) & (sec < a + length))
+        out[role] = f.filter(keep)
+    return out
+
+
 def _work(args):
     klass, i, seed, with_position, *rest = args
     upside_down = bool(rest and rest[0])
     op_door = float(rest[1]) if len(rest) > 1 else 0.0
     pv_decimals = rest[2] if len(rest) > 2 else None
+    cascade = bool(rest[3]) if len(rest) > 3 else False
+    gaps = int(rest[4]) if len(rest) > 4 else 0
     from valvediag.io.registry import LoopSpec
     from valvediag.scan import LoopJob, ScanConfig, analyse_loop
     from valvediag.synth.cases import CLASSES, draw_loop
     from valvediag.synth.plant import historian_record
 
     rng = np.random.default_rng([seed, list(CLASSES).index(klass), i])
-    loop = draw_loop(klass, rng, name=f"{klass}-{i:02d}")
+    loop = draw_loop(klass, rng, name=f"{klass}-{i:02d}", cascade=cascade)
     known = rng.random() < 0.7
     if upside_down:
         loop = dataclasses.replace(loop, pv=100.0 - loop.pv, sp=100.0 - loop.sp)
@@ -131,8 +161,12 @@ def _work(args):
                     process_type=loop.process_type if known else "unknown", span=100.0)
     end = T0 + dt.timedelta(seconds=loop.duration_s)
     job = LoopJob(spec=spec, start=end - dt.timedelta(hours=24), end=end, problems=())
+    frames = _frames(loop, position)
+    if gaps:
+        frames = _cut_gaps(frames, loop.duration_s, gaps,
+                           np.random.default_rng([seed, list(CLASSES).index(klass), i, 7]))
     t0 = time.perf_counter()
-    r = analyse_loop(job, _frames(loop, position), ScanConfig(window_hours=24))
+    r = analyse_loop(job, frames, ScanConfig(window_hours=24))
     return dict(klass=klass, index=i, seed=seed, truth=loop.truth, verdict=r.verdict,
                 reason=r.reason, confidence=r.confidence, secs=time.perf_counter() - t0,
                 h=loop.sample_time, hours=loop.duration_s / 3600, known=known,
@@ -195,6 +229,15 @@ def main():
     ap.add_argument("--pv-decimals", type=int, default=None, metavar="N",
                     help="round every loop's PV and set point to N decimals (of a span of 100), "
                          "as an export does (default: as drawn)")
+    ap.add_argument("--cascade", action="store_true",
+                    help="draw the flow classes as a cascade's inner loops, their set points "
+                         "wandering as the outer loop's output does")
+    ap.add_argument("--gaps", type=int, default=0, metavar="N",
+                    help="cut N gaps of 10-30 minutes at random places out of every loop's "
+                         "record (default 0)")
+    ap.add_argument("--seeds", default="", metavar="A-B",
+                    help="draw the study seeds A to B (4 loops a class is usual) instead of "
+                         "the named sets")
     ap.add_argument("--reverse-acting", action="store_true",
                     help="also run every loop upside down (PV and SP turned about the middle of "
                          "the span, as on a valve that acts the other way) and print the loops "
@@ -205,14 +248,26 @@ def main():
     if unknown:
         ap.error(f"unknown class {', '.join(unknown)}; choose from {', '.join(CLASSES)}")
     out = open(args.evidence, "w") if args.evidence else None
-    names = list(SETS) if args.set == "all" else [args.set]
+    seeds = dict(SETS) if args.set == "all" else {args.set: SETS[args.set]}
+    if args.seeds:
+        lo, _, hi = args.seeds.partition("-")
+        try:
+            study = range(int(lo), int(hi or lo) + 1)
+        except ValueError:
+            ap.error(f"--seeds takes A-B, not {args.seeds!r}")
+        if set(study) & set(SETS.values()):
+            ap.error(f"--seeds draws study seeds: not {', '.join(map(str, SETS.values()))}, "
+                     "the named sets")
+        seeds = {f"study seed {k}": k for k in study}
     print(f"valvediag realistic benchmark on {os.cpu_count()} cores")
-    for name in names:
-        jobs = [(k, i, SETS[name], args.valve_position, False, args.op_door, args.pv_decimals)
-                for k in classes for i in range(args.loops)]
+    all_rows = []
+    for name, seed in seeds.items():
+        jobs = [(k, i, seed, args.valve_position, False, args.op_door, args.pv_decimals,
+                 args.cascade, args.gaps) for k in classes for i in range(args.loops)]
         t0 = time.perf_counter()
         with ProcessPoolExecutor(max_workers=max(1, args.workers)) as ex:
             rows = list(ex.map(_work, jobs, chunksize=2))
+        all_rows += rows
         # the held-out set's misses are not printed: looking at them is tuning on them
         details = name != "heldout"
         with_mv = ", valve position recorded" if args.valve_position else ""
@@ -220,7 +275,11 @@ def main():
             with_mv += f", OP stored by swinging door at {args.op_door:g} %"
         if args.pv_decimals is not None:
             with_mv += f", PV rounded to {args.pv_decimals} decimals"
-        _report(rows, f"{name} set (seed {SETS[name]}{with_mv}), "
+        if args.cascade:
+            with_mv += ", flows as cascade inner loops"
+        if args.gaps:
+            with_mv += f", {args.gaps} gaps of 10-30 min cut out"
+        _report(rows, f"{name} set (seed {seed}{with_mv}), "
                       f"{time.perf_counter() - t0:.0f} s wall", details)
         if args.reverse_acting:
             with ProcessPoolExecutor(max_workers=max(1, args.workers)) as ex:
@@ -243,6 +302,8 @@ def main():
                     print(f"   {r['klass']:26s} -> {r['verdict']:18s} h={r['h']:g} "
                           f"{r['hours']:.0f}h known={r['known']} comp={r['compressed']} "
                           f"noise={r['noise']:.1f}: {r['reason'][:160]}")
+    if args.seeds and len(seeds) > 1:
+        _report(all_rows, f"study seeds {args.seeds}, all together", False)
     if out is not None:
         out.close()
 

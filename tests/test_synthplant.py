@@ -491,3 +491,23 @@ def test_the_benchmark_generator_does_not_count_cycles_with_the_scans_detector(m
     for ci, klass in enumerate(CLASSES):
         loop = draw_loop(klass, np.random.default_rng([7, ci, 0]))
         assert loop.klass == klass
+
+
+def test_a_flow_drawn_as_a_cascade_inner_loop_is_the_same_draw_with_a_wandering_set_point():
+    from valvediag.synth.cases import CASCADE_WANDER, CLASSES, draw_loop
+
+    for klass in ("flow-stiction-events", "flow-healthy", "level-stiction-cycle"):
+        key = [10, list(CLASSES).index(klass), 0]
+        plain = draw_loop(klass, np.random.default_rng(key))
+        inner = draw_loop(klass, np.random.default_rng(key), cascade=True)
+        assert inner.params["kc"] == plain.params["kc"]
+        assert inner.params["tau_s"] == plain.params["tau_s"]
+        wander = inner.sp - plain.sp
+        if klass.startswith("flow"):
+            # three sines of 0.1-0.5 each, over 20-120 minutes: smooth, and
+            # no more than the three amplitudes' sum either way of the start
+            assert inner.params["cascade"] and np.ptp(wander) > 0.1
+            assert np.max(np.abs(wander - wander[0])) <= 6 * CASCADE_WANDER[1]
+            assert np.max(np.abs(np.diff(wander))) < 0.01 * inner.sample_time
+        else:
+            assert "cascade" not in inner.params and np.array_equal(inner.sp, plain.sp)

@@ -132,6 +132,10 @@ def _wave(kind: str, t: np.ndarray, period: float, phase: float) -> np.ndarray:
     return np.sin(x)
 
 
+#: Amplitude range of each of the three sines of a cascade's set point [PV unit].
+CASCADE_WANDER = (0.1, 0.5)
+
+
 def _random_walk(rng, n: int, h: float, step_s: float, size: float) -> np.ndarray:
     """A load that wanders: piecewise-linear through random points ``step_s`` apart."""
     k = max(2, int(n * h / step_s) + 2)
@@ -263,8 +267,8 @@ def _events(pv: np.ndarray, noise: float) -> int:
     return int(big.size and 1 + np.count_nonzero(np.diff(big) > 1))
 
 
-def draw_loop(klass: str, rng: np.random.Generator, *, name: str = "", tries: int = 60
-              ) -> SynthLoop:
+def draw_loop(klass: str, rng: np.random.Generator, *, name: str = "", tries: int = 60,
+              cascade: bool = False) -> SynthLoop:
     """Simulate one loop of a class, redrawn until its record shows the class.
 
     Parameters
@@ -275,6 +279,12 @@ def draw_loop(klass: str, rng: np.random.Generator, *, name: str = "", tries: in
     name : str
     tries : int
         Redraws before giving up.
+    cascade : bool
+        A flow class is drawn as a cascade's inner loop: its set point, the
+        outer loop's output, wanders as three sines of 0.1-0.5 [PV unit]
+        with periods of 20-120 minutes, on top of the class's own set-point
+        moves (:data:`CASCADE_WANDER`). Levels and dead responses are drawn
+        as without it. Without it the draws are as they were.
 
     Returns
     -------
@@ -289,7 +299,7 @@ def draw_loop(klass: str, rng: np.random.Generator, *, name: str = "", tries: in
         raise ValueError(f"unknown class {klass!r}; choose from {', '.join(CLASSES)}")
     truth, ptype, _ = CLASSES[klass]
     for _ in range(tries):
-        out = _try(klass, rng)
+        out = _try(klass, rng, cascade)
         if out is not None:
             pv, op, sp, h, params, mv = out
             return SynthLoop(name=name or klass, klass=klass, truth=truth, process_type=ptype,
@@ -297,7 +307,7 @@ def draw_loop(klass: str, rng: np.random.Generator, *, name: str = "", tries: in
     raise ValueError(f"{klass}: no draw in {tries} tries showed the class")
 
 
-def _try(klass: str, rng: np.random.Generator):
+def _try(klass: str, rng: np.random.Generator, cascade: bool = False):
     """One draw: (pv, op, sp, h, params, mv) or None when the record does not show the class."""
     h = float(rng.choice((1.0, 2.0, 5.0, 10.0)))
     length = float(rng.choice((1.0, 2.0, 4.0))) * 3600 if rng.random() < 0.5 else _DAY
@@ -383,6 +393,15 @@ def _try(klass: str, rng: np.random.Generator):
             sim.update(kc=float(rng.uniform(0.05, 0.3)), ti=float(rng.uniform(60.0, 600.0)))
     elif klass == "dead-response":
         return _dead_response(rng, h, length, compressed, noise_pct, p)
+    if cascade and not integ:
+        # the outer loop's output, from a stream of its own (spawning draws
+        # nothing from ``rng``): the loop is the same draw as without it
+        g = np.random.default_rng(rng.bit_generator.seed_seq.spawn(1)[0])
+        lo, hi = CASCADE_WANDER
+        wander = sum(g.uniform(lo, hi) * np.sin(2 * np.pi * t / g.uniform(1200.0, 7200.0)
+                                                + g.uniform(0, 2 * np.pi)) for _ in range(3))
+        profile_sp = profile_sp + wander - wander[0]
+        p.update(cascade=True)
     if "stiction" in klass or "backlash" in klass or klass in ("level-linear-tuning",):
         sim.update(sp_step=1.0, sp_step_time=60.0)
     # measurement noise: in % of the clean record's range, fed back to the controller
