@@ -804,6 +804,17 @@ def test_slips_of_a_record_cut_by_gaps_are_counted_over_its_stretches(towards_sp
         assert r.evidence["pooled_stretches"] == 4 and r.evidence["from_events"]
 
 
+def _scan_rows_kept(loop, keep, process_type):
+    """A benchmark draw scanned in a 24 h window with only the rows ``keep`` exported."""
+    t = np.arange(loop.pv.size) * loop.sample_time
+    spec = LoopSpec("X1", "X1.PV", "X1.OP", sp_tag="X1.SP", process_type=process_type,
+                    span=100.0)
+    return analyse_loop(job_for(spec, loop.pv.size, loop.sample_time),
+                        {k: frame(t[keep], v[keep]) for k, v in
+                         (("pv", loop.pv), ("op", loop.op), ("sp", loop.sp))},
+                        ScanConfig(window_hours=24))
+
+
 @pytest.mark.parametrize("klass, seed, index, verdict", [
     ("flow-linear-disturbance", 15, 1, "linear-oscillation"),
     ("flow-stiction-cycle", 15, 2, "stiction"),
@@ -819,13 +830,7 @@ def test_a_clock_driven_load_is_read_over_the_stretches_of_a_record_cut_by_gaps(
 
     loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
     t = np.arange(loop.pv.size) * loop.sample_time
-    keep = t % 3600.0 < 3300.0
-    spec = LoopSpec("X1", "X1.PV", "X1.OP", sp_tag="X1.SP", process_type=loop.process_type,
-                    span=100.0)
-    r = analyse_loop(job_for(spec, loop.pv.size, loop.sample_time),
-                     {k: frame(t[keep], v[keep]) for k, v in
-                      (("pv", loop.pv), ("op", loop.op), ("sp", loop.sp))},
-                     ScanConfig(window_hours=24))
+    r = _scan_rows_kept(loop, t % 3600.0 < 3300.0, loop.process_type)
     assert r.evidence["segments"] >= 4
     pooled = r.evidence["pooled_phase_wander"]
     assert r.verdict == verdict, r.reason
@@ -849,12 +854,7 @@ def test_a_levels_kinks_are_counted_over_the_stretches_of_a_record_cut_by_gaps()
     keep = np.ones(t.size, bool)
     for start, length in [(cut.uniform(0, t[-1]), cut.uniform(600, 1800)) for _ in range(3)]:
         keep &= ~((t >= start) & (t < start + length))
-    spec = LoopSpec("L1", "L1.PV", "L1.OP", sp_tag="L1.SP", process_type="integrating",
-                    span=100.0)
-    r = analyse_loop(job_for(spec, loop.pv.size, loop.sample_time),
-                     {k: frame(t[keep], v[keep]) for k, v in
-                      (("pv", loop.pv), ("op", loop.op), ("sp", loop.sp))},
-                     ScanConfig(window_hours=24))
+    r = _scan_rows_kept(loop, keep, "integrating")
     assert r.evidence["segments"] >= 3
     assert r.verdict == "stiction", r.reason
     assert "jumps of the slope of the PV are valve events" in r.reason
