@@ -522,3 +522,33 @@ def test_a_sticky_level_rounded_as_an_export_keeps_its_verdict(decimals):
     assert d.verdict == classify_loop(pv, op, sp, **kw).verdict == "stiction", d.reason
     assert d.evidence["pv_quantum"] == pytest.approx(10.0 ** -decimals)
     assert "resolution" not in d.reason
+
+
+@pytest.mark.parametrize("valve, verdict, says", [
+    ("linear", "linear-oscillation", "keeps time like a clock"),
+    ("kano", "stiction", "stick-slip events"),
+])
+def test_a_cascades_wandering_set_point_is_taken_out_of_the_oscillation(valve, verdict, says):
+    # the inner flow loop of a cascade follows the outer loop's output, which
+    # wanders by a few percent over tens of minutes, more than the loop's own
+    # swing: read in the PV, a periodic load (97 s) or a sticky valve's
+    # limit cycle blurred into no regular oscillation; the control error
+    # holds the swing without the wander
+    n = 4 * 3600
+    t = np.arange(n, dtype=float)
+    wander = np.sin(2 * np.pi * t / 2400.0) + 0.8 * np.sin(2 * np.pi * t / 5100.0 + 1.0)
+    extra = dict(load_sin_amplitude=1.0, load_sin_period=97.0) if valve == "linear" else \
+        dict(valve_params={"S": 3.0, "J": 1.5}, valve_noise_band=0.15)
+    sim = simulate_loop(process="self-regulating", tau=20.0, kc=0.5, ti=30.0, sp=50.0,
+                        sample_time=1.0, n_samples=n, noise_std=0.05, valve=valve,
+                        sp_profile=wander, seed=1, **extra)
+    d = classify_loop(sim.pv, sim.op, sim.sp, sample_time=1.0, process_type="self-regulating")
+    assert d.evidence["oscillation_read_in"].startswith("control error")
+    assert d.verdict == verdict and says in d.reason, d.reason
+    # a set point that steps (an operator's move) is no wander: the PV is read
+    steps = 50.0 + 2.0 * (t > n / 2)
+    sim = simulate_loop(process="self-regulating", tau=20.0, kc=0.5, ti=30.0, sp=0.0,
+                        sample_time=1.0, n_samples=n, noise_std=0.05, valve=valve,
+                        sp_profile=steps, seed=1, **extra)
+    d = classify_loop(sim.pv, sim.op, sim.sp, sample_time=1.0, process_type="self-regulating")
+    assert "oscillation_read_in" not in d.evidence

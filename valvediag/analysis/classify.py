@@ -515,6 +515,12 @@ def _deskew_op(pv: np.ndarray, op: np.ndarray, mv: np.ndarray | None):
     return shift(op), (None if mv is None else shift(mv)), lag
 
 
+#: A set point that moves by at most this many of the PV's noise standard
+#: deviations from one sample to the next, and moves, wanders (a cascade's);
+#: the loop's oscillation is read in its control error.
+SP_WANDER = 3.0
+
+
 def _oscillates(osc: Oscillation) -> bool:
     """A regular oscillation of at least 1.5 cycles was read."""
     return bool(np.isfinite(osc.period) and osc.cycles >= 1.5 and osc.is_regular)
@@ -534,7 +540,13 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     op : array_like, shape (n,)
         Controller output, same sampling [%].
     sp : array_like, shape (n,), optional
-        Set point [PV unit]; used only as evidence (set-point moves).
+        Set point [PV unit]; used as evidence (set-point moves). Where it
+        moves by at most :data:`SP_WANDER` noise standard deviations of the
+        PV a sample (a cascade's inner loop, whose set point is the outer
+        loop's output), the oscillation is read in the control error
+        ``PV - SP``: the PV follows the wander, which blurs the loop's own
+        swing (``oscillation_read_in`` in the evidence). A step under that
+        limit, small against the noise, is read so too.
     sample_time : float
         [s]
     process_type : {'unknown', 'integrating', 'self-regulating'}
@@ -705,11 +717,18 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     if np.ptp(x) == 0:
         return verdict("insufficient-data", 0.9, "the PV does not change: frozen sensor or no data",
                        pv=x, op=u)
-    osc = detect_oscillation(x, h)
     s_ab = sp[a:b] if sp is not None else None
+    wanders = (s_ab is not None and bool(np.all(np.isfinite(s_ab))) and np.ptp(s_ab) > 0
+               and float(np.max(np.abs(np.diff(s_ab)))) <= SP_WANDER * white_noise_std(x))
+    # a set point that wanders without a step (a cascade's inner loop follows
+    # the outer loop's output) moves the PV with it: the loop's own swing is
+    # read in the control error, without the wander
+    osc = detect_oscillation(x - s_ab if wanders else x, h)
+    if wanders:
+        ev["oscillation_read_in"] = "control error (the set point wanders)"
     in_error = None
-    if (s_ab is not None and _oscillates(osc) and bool(np.all(np.isfinite(s_ab)))
-            and np.ptp(s_ab) > 0):
+    if (s_ab is not None and not wanders and _oscillates(osc)
+            and bool(np.all(np.isfinite(s_ab))) and np.ptp(s_ab) > 0):
         # where the set point moves, the loop's own oscillation shows in its
         # control error too: a PV that follows a set point stepped up and down
         # swings as regularly as a valve's cycle (an error that swings alone,
