@@ -802,6 +802,9 @@ def test_slips_of_a_record_cut_by_gaps_are_counted_over_its_stretches(towards_sp
         assert "over 4 stretches, 4 of 4 jumps of the PV are valve events" in r.reason
         assert "pooled over the record's stretches" in r.reason
         assert r.evidence["pooled_stretches"] == 4 and r.evidence["from_events"]
+        # the stretches pooled are the fault's episodes: it has a time share
+        assert len(r.episodes) == 4 and {e.verdict for e in r.episodes} == {"stiction"}
+        assert r.evidence["time_share"] > 0.3
 
 
 def _scan_rows_kept(loop, keep, process_type):

@@ -734,10 +734,9 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                                   "please report this with the loop's data", frames=frames)
 
 
-def _pooled_events(seg_diag, record_s: float, process_type: str
-                   ) -> tuple[str, float, str] | None:
-    """(verdict, confidence, reason) from a valve's events pooled over a
-    record's stretches, or None where they make no fault.
+def _pooled_events(seg_diag, record_s: float, process_type: str):
+    """(verdict, confidence, reason, stretches pooled) from a valve's events
+    pooled over a record's stretches, or None where they make no fault.
 
     Each stretch read alone may hold too few of the valve's slips (a record
     cut by gaps); summed over the stretches, the counts are judged as a
@@ -745,9 +744,11 @@ def _pooled_events(seg_diag, record_s: float, process_type: str
     a flow's jumps and a level's kinks apart. A level's kinks that a valve
     following the OP explains (read against each stretch's set-point steps)
     are not counted."""
-    quiet = [d for _, _, d in seg_diag if d.verdict in ("no-oscillation", "insufficient-data")]
+    quiet = [e for e in seg_diag if e[2].verdict in ("no-oscillation", "insufficient-data")]
     for process in ("self-regulating", "integrating"):
-        readings = [r for d in quiet for r in d.events if r.process == process and r.events > 0]
+        read = [(e, r) for e in quiet for r in e[2].events
+                if r.process == process and r.events > 0]
+        readings = [r for _, r in read]
         if len(readings) < 2:
             continue
         pooled = pooled_stick_slip_events(readings, record_s=record_s)
@@ -762,7 +763,7 @@ def _pooled_events(seg_diag, record_s: float, process_type: str
             (0.6 if pooled.kind == "undecided" else 1.0)
         return pooled.kind, conf, (f"{what}: {pooled.reason} ({process} process, {src}); "
                                    "method: valve events (slips and take-ups) pooled over the "
-                                   "record's stretches")
+                                   "record's stretches"), [e for e, _ in read]
     return None
 
 
@@ -913,8 +914,12 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
             pooled = _pooled_events(seg_diag, _record_s(aligned), spec.process_type) \
                 if verdict == "no-oscillation" else None
             if pooled is not None:
-                verdict, confidence, reason = pooled
-                ev.update(from_events=True, pooled_stretches=len(segs))
+                # the stretches whose events were pooled are the fault's episodes
+                verdict, confidence, reason, used = pooled
+                ev.update(from_events=True, pooled_stretches=len(used))
+                episodes = [(a, b, dataclasses.replace(d, verdict=verdict,
+                                                       confidence=confidence))
+                            for a, b, d in used]
     if verdict != "no-oscillation" and ev["coverage"] < config.min_coverage:
         # any other verdict on a snapshot says what it stands on too
         reason += (f" (from the {_duration(usable_s)} of data available of the "
