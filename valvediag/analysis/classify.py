@@ -825,14 +825,11 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                 src = "loop registry" if process_type != "unknown" else \
                     "data test: the OP after the set-point steps" if level_by_steps() \
                     else "assumed"
-                what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
-                        }.get(slips.kind, "valve events")
-                conf = 0.5 + 0.4 * min(1.0, slips.consistent / 10.0)
                 # a type the data named is the loop's type in the result
                 named = {} if process_type != "unknown" or screened == "unknown" else \
                     {"process_screen": kind}
-                return verdict(slips.kind, conf if slips.kind != "undecided" else 0.6 * conf,
-                               f"{what}: {slips.reason} ({kind} process, {src}); method: "
+                return verdict(slips.kind, slips.confidence,
+                               f"{slips.what}: {slips.reason} ({kind} process, {src}); method: "
                                "valve events (slips and take-ups)", **named, **common)
         return None
 

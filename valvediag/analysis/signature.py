@@ -833,6 +833,19 @@ class StickSlipEvents:
     op: np.ndarray | None = field(default=None, repr=False)
     sample_time: float = 1.0
 
+    @property
+    def what(self) -> str:
+        """The events named by their kind, for a verdict's reason."""
+        return {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
+                }.get(self.kind, "valve events")
+
+    @property
+    def confidence(self) -> float:
+        """A verdict's confidence from the valve events: 0.5 for a few, 0.9 from
+        ten, six tenths of that where their kind is undecided."""
+        conf = 0.5 + 0.4 * min(1.0, self.consistent / 10.0)
+        return 0.6 * conf if self.kind == "undecided" else conf
+
     def as_dict(self) -> dict:
         """The figures as plain types."""
         return {"found": self.found, "kind": self.kind, "events": self.events,

@@ -754,16 +754,12 @@ def _pooled_events(seg_diag, record_s: float, process_type: str):
         pooled = pooled_stick_slip_events(readings, record_s=record_s)
         if not pooled.found:
             continue
-        what = {"stiction": "stick-slip events", "backlash": "dead-band take-ups"
-                }.get(pooled.kind, "valve events")
         src = "loop registry" if process_type != "unknown" else \
             "data test: the OP after the set-point steps" if process == "integrating" \
             else "assumed"
-        conf = (0.5 + 0.4 * min(1.0, pooled.consistent / 10.0)) * \
-            (0.6 if pooled.kind == "undecided" else 1.0)
-        return pooled.kind, conf, (f"{what}: {pooled.reason} ({process} process, {src}); "
-                                   "method: valve events (slips and take-ups) pooled over the "
-                                   "record's stretches"), [e for e, _ in read]
+        reason = (f"{pooled.what}: {pooled.reason} ({process} process, {src}); method: valve "
+                  "events (slips and take-ups) pooled over the record's stretches")
+        return pooled.kind, pooled.confidence, reason, [e for e, _ in read]
     return None
 
 
