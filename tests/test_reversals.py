@@ -10,7 +10,7 @@ from valvediag.analysis.reversals import (DURATION_SPREAD, MIN_REST_SHARE,  # no
                                           MIN_REST_SHARE_FIXED, MIN_RESTS,
                                           MIN_RESTS_FIXED, MIN_TURNS_FIXED,
                                           TRAVEL_SPREAD_SHARE, TURN_TRAVEL_SPREAD,
-                                          reversal_rests)
+                                          pooled_reversal_rests, reversal_rests)
 
 H, N = 1.0, 6 * 3600
 
@@ -152,6 +152,56 @@ def test_classify_reads_the_rests_on_a_flow_and_not_on_a_level():
     # a level runs on after its OP turns whatever its valve does: not read
     d = classify_loop(pv, op, sp, sample_time=H, process_type="integrating")
     assert "reversal_rests" not in d.evidence
+
+
+def _hourly_stretches(pv, op, sp, missing_s=300.0):
+    """Each hour's stretch of a record whose last ``missing_s`` of every hour
+    were not exported, read alone."""
+    keep = int((3600.0 - missing_s) / H)
+    return [reversal_rests(pv[a:a + keep], op[a:a + keep], H, sp=sp[a:a + keep])
+            for a in range(0, N, int(3600 / H))]
+
+
+@pytest.mark.parametrize("valve, vp", [("backlash", {"DB": 3.0}), ("linear", {}),
+                                       ("kano", {"S": 3.0, "J": 1.5})])
+def test_rests_of_a_record_cut_by_gaps_are_judged_over_its_stretches(valve, vp):
+    # five minutes missing every hour: an hour holds one or two of a loose
+    # valve's rests, too few alone; the six hours hold enough, and the band
+    # is the one a gap-free record reads. A linear or sticky valve's
+    # stretches pool to no dead band
+    pv, op, sp = _flow(valve, vp)
+    parts = _hourly_stretches(pv, op, sp)
+    assert len(parts) == 6 and not any(r.found for r in parts)
+    pooled = pooled_reversal_rests(parts)
+    assert pooled.legs == sum(r.legs for r in parts)
+    assert pooled.excursions == sum(r.excursions for r in parts)
+    if valve == "backlash":
+        assert pooled.found and pooled.rests >= MIN_RESTS, pooled.reason
+        assert pooled.dead_band == pytest.approx(3.0, rel=0.15)
+    else:
+        assert pooled.excursions >= MIN_RESTS
+        assert not pooled.found and pooled.rests == 0, pooled.reason
+
+
+def test_one_reading_pooled_is_that_reading():
+    pv, op, sp = _flow("backlash", {"DB": 3.0})
+    whole = reversal_rests(pv, op, H, sp=sp)
+    pooled = pooled_reversal_rests([whole])
+    assert pooled.as_dict() == whole.as_dict()
+
+
+def test_stretches_read_in_the_other_sense_are_left_out():
+    # the sense says which way an excursion runs: a stretch read the other
+    # way (an OP exported reversed for an hour) is not pooled with the rest
+    pv, op, sp = _flow("backlash", {"DB": 3.0})
+    parts = _hourly_stretches(pv, op, sp)
+    keep = int(3300 / H)
+    flipped = reversal_rests(pv[:keep], 100.0 - op[:keep], H, sp=sp[:keep])
+    assert flipped.sense == -parts[0].sense
+    pooled = pooled_reversal_rests(parts + [flipped])
+    assert pooled.sense == parts[0].sense
+    assert pooled.legs == sum(r.legs for r in parts)
+    assert not pooled_reversal_rests([]).found
 
 
 def test_bad_input_and_the_plot():

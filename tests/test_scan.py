@@ -844,6 +844,30 @@ def test_a_clock_driven_load_is_read_over_the_stretches_of_a_record_cut_by_gaps(
         assert not pooled["keeps_clock"] and pooled["wander"] > 2.0
 
 
+@pytest.mark.parametrize("klass, verdict", [("flow-backlash-events", "backlash"),
+                                            ("flow-healthy", "no-oscillation")])
+def test_a_loose_flows_rests_are_counted_over_the_stretches_of_a_record_cut_by_gaps(
+        klass, verdict):
+    # the realistic benchmark's study draw 15-1 with five minutes missing
+    # every hour: each 55-minute stretch holds too few of a loose valve's
+    # rests at the OP's reversals (it read no-oscillation before), the day
+    # holds enough; a healthy flow cut the same way leaves none
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    loop = draw_loop(klass, np.random.default_rng([15, list(CLASSES).index(klass), 1]))
+    t = np.arange(loop.pv.size) * loop.sample_time
+    r = _scan_rows_kept(loop, t % 3600.0 < 3300.0, loop.process_type)
+    assert r.evidence["segments"] >= 20
+    assert r.verdict == verdict, r.reason
+    if verdict == "backlash":
+        assert "rests at the OP's reversals pooled over the record's stretches" in r.reason
+        pooled = r.evidence["reversal_rests"]
+        assert pooled["found"] and pooled["stretches"] == r.evidence["pooled_stretches"] >= 10
+        # sized from the pooled rests, as a gap-free record's band is
+        assert r.size["DB"] == pytest.approx(loop.params["DB"], rel=0.15)
+        assert len(r.episodes) == pooled["stretches"]
+
+
 def test_a_levels_kinks_are_counted_over_the_stretches_of_a_record_cut_by_gaps():
     # a sticky level without a cycle (the realistic benchmark's study draw
     # 13-1) with three gaps of 10-30 minutes: each stretch holds too few of

@@ -68,7 +68,7 @@ from .oscillation import (Oscillation, PhaseWander, detect_oscillation, phase_wa
                           turned_cycles)
 from .quality import (bridge_short_gaps, despike, longest_run, record_quantum, stored_points,
                       white_noise_std)
-from .reversals import reversal_rests
+from .reversals import ReversalRests, reversal_rests
 from .signature import (KIND_SHARE, SENSE_SKEW, ValveSignature, controller_lag,
                         cycle_transitions, horch_correlation, stick_slip_events,
                         valve_signature)
@@ -318,6 +318,10 @@ class LoopDiagnosis:
         tried, whether or not they made a fault (a level's kinks that a
         following valve explains are left out): a record cut by gaps pools
         them (:func:`~valvediag.analysis.signature.pooled_stick_slip_events`).
+    rests : valvediag.analysis.reversals.ReversalRests or None
+        The valve's rests at the OP's reversals, wherever they were read,
+        fault or not: a record cut by gaps pools them
+        (:func:`~valvediag.analysis.reversals.pooled_reversal_rests`).
     pv, op : numpy.ndarray
         The analysed stretch of data.
     sample_time : float
@@ -341,6 +345,7 @@ class LoopDiagnosis:
     travel: ValveTravel | None = field(default=None, repr=False)
     clock: PhaseWander | None = field(default=None, repr=False)
     events: tuple = field(default=(), repr=False)
+    rests: ReversalRests | None = field(default=None, repr=False)
     pv: np.ndarray = field(default=None, repr=False)
     op: np.ndarray = field(default=None, repr=False)
     sample_time: float = 1.0
@@ -654,11 +659,13 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     travel = None
     coarse: list[str] = []     # why the PV's rounding hides a cycle's waveform
     events_read: dict = {}     # valve events read, by process type
+    rests_read: dict = {}      # the valve's rests at the OP's reversals, where read
 
     def verdict(v, conf, reason, **kw):
         out = dict(process_screen="metadata" if process_type != "unknown" else "unknown",
                    bi=np.nan, period=np.nan, amplitude=np.nan, cycles=0.0, regularity=np.nan,
-                   travel=travel, events=tuple(events_read.values()))
+                   travel=travel, events=tuple(events_read.values()),
+                   rests=rests_read.get("rests"))
         out.update(kw)
         if coarse and v in ("stiction", "backlash", "undecided") and not (
                 travel is not None and travel.fault):
@@ -871,15 +878,14 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             # a level runs on after the OP turns, whatever its valve does
             return None
         rests = reversal_rests(x, u, h, sp=sp[a:b] if sp is not None else None)
+        rests_read["rests"] = rests
         ev["reversal_rests"] = rests.as_dict()
         if not rests.found:
             return None
         ev["from_events"] = True
         src = "self-regulating process, loop registry" if process_type != "unknown" else \
             "process type not known, read as self-regulating"
-        count = rests.excursions if rests.by_turns else rests.rests
-        return verdict("backlash", (0.5 + 0.4 * min(1.0, count / 10.0))
-                       * (1.0 if process_type != "unknown" else 0.8),
+        return verdict("backlash", rests.confidence * (1.0 if process_type != "unknown" else 0.8),
                        f"a dead band at the OP's reversals: {rests.reason} ({src}){also}; "
                        "method: the valve's rests at the OP's reversals"
                        + (" and valve events" if also else ""), **common)

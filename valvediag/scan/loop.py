@@ -16,6 +16,7 @@ from ..analysis.align import AlignedLoop, align_loop, median_spacing, to_epoch_u
 from ..analysis.classify import LAG_DOUBT, LoopDiagnosis, classify_loop
 from ..analysis.oscillation import (ACF_STRONG, MIN_CROSSINGS, PERIODIC_FRACTION_MIN, PhaseWander,
                                    detect_oscillation, pooled_phase_wander)
+from ..analysis.reversals import pooled_reversal_rests
 from ..analysis.signature import pooled_stick_slip_events
 from ..analysis.quality import (BRIDGE_SAMPLES, DataQuality, bridge_short_breaks,
                                 mask_frozen_pv, quality_metrics)
@@ -735,7 +736,7 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
 
 
 def _pooled_events(seg_diag, record_s: float, process_type: str):
-    """(verdict, confidence, reason, stretches pooled) from a valve's events
+    """(verdict, confidence, reason, stretches pooled, evidence) from a valve's events
     pooled over a record's stretches, or None where they make no fault.
 
     Each stretch read alone may hold too few of the valve's slips (a record
@@ -759,8 +760,36 @@ def _pooled_events(seg_diag, record_s: float, process_type: str):
             else "assumed"
         reason = (f"{pooled.what}: {pooled.reason} ({process} process, {src}); method: valve "
                   "events (slips and take-ups) pooled over the record's stretches")
-        return pooled.kind, pooled.confidence, reason, [e for e, _ in read]
+        return pooled.kind, pooled.confidence, reason, [e for e, _ in read], {}
     return None
+
+
+def _pooled_rests(seg_diag, process_type: str):
+    """(verdict, confidence, reason, stretches pooled, evidence) from a loose
+    valve's rests at the OP's reversals pooled over a record's stretches, or
+    None where they make no fault.
+
+    Each stretch read alone may hold too few of the OP's reversals (a record
+    cut by gaps); the excursions of the stretches where the rests were read
+    (self-regulating, no cycle) are judged together as a gap-free record's
+    (:func:`~valvediag.analysis.reversals.pooled_reversal_rests`). The
+    evidence is the pooled reading (``reversal_rests``, with the stretches
+    it stands on), from which the dead band is sized."""
+    read = [e for e in seg_diag if e[2].rests is not None and e[2].rests.legs > 0]
+    if len(read) < 2:
+        return None
+    pooled = pooled_reversal_rests([d.rests for _, _, d in read])
+    if not pooled.found:
+        return None
+    known = process_type != "unknown"
+    src = "self-regulating process, loop registry" if known else \
+        "process type not known, read as self-regulating"
+    reason = (f"a dead band at the OP's reversals: over {len(read)} stretches, {pooled.reason} "
+              f"({src}); method: the valve's rests at the OP's reversals pooled over the "
+              "record's stretches")
+    used = [e for e in read if e[2].rests.sense == pooled.sense]
+    return ("backlash", pooled.confidence * (1.0 if known else 0.8), reason, used,
+            {"reversal_rests": dict(pooled.as_dict(), stretches=len(used))})
 
 
 def _pooled_clock(seg_diag, h: float) -> PhaseWander | None:
@@ -907,12 +936,14 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
             confidence *= 0.5 + 0.5 * ev["coverage"] / config.min_coverage
         if len(segs) > 1:
             ev["segment_verdicts"] = sorted({d.verdict for _, _, d in seg_diag})
-            pooled = _pooled_events(seg_diag, _record_s(aligned), spec.process_type) \
+            pooled = (_pooled_events(seg_diag, _record_s(aligned), spec.process_type)
+                      or _pooled_rests(seg_diag, spec.process_type)) \
                 if verdict == "no-oscillation" else None
             if pooled is not None:
                 # the stretches whose events were pooled are the fault's episodes
-                verdict, confidence, reason, used = pooled
-                ev.update(from_events=True, pooled_stretches=len(used))
+                verdict, confidence, reason, used, pooled_ev = pooled
+                ev.update(from_events=True, pooled_stretches=len(used), **pooled_ev)
+                rep = dataclasses.replace(rep, evidence={**rep.evidence, **pooled_ev})
                 episodes = [(a, b, dataclasses.replace(d, verdict=verdict,
                                                        confidence=confidence))
                             for a, b, d in used]
