@@ -55,6 +55,29 @@ def test_robust_recovers_the_rounding_of_its_own_model():
     assert r.verdict == "backlash"
 
 
+@pytest.mark.parametrize("cycles", [30, 79, 80, 81, 200])
+def test_a_long_record_reads_the_index_of_its_parts(cycles):
+    # more apices than the pooled fit takes (MAX_APEX): it reads runs of
+    # three neighbours spread over the record, and a middle slope between
+    # each two. Spread one by one, neighbours were skipped: at 80 cycles no
+    # middle slope was read (no index: a day of a level cycling every 18
+    # minutes read insufficient-data), at 79-82 two to four of them. The
+    # rounding is one of the fit's own widths, so that the index does not
+    # jump between two neighbouring widths as the apices taken change
+    from valvediag.analysis.bi import MAX_APEX, W_GRID
+
+    h, P = 1.0, 400.0
+    w = float(W_GRID[16]) * P
+    t = np.arange(int(cycles * P)) * h
+    x = hyperbolic_wave(t, P, w) + np.random.default_rng(1).normal(0.0, 0.002 * P, t.size)
+    whole = backlash_index(x, h)
+    part = backlash_index(x[:int(20 * P)], h)
+    assert whole.verdict == part.verdict == "backlash"
+    assert whole.bi == pytest.approx(part.bi, rel=0.02)
+    # a middle slope is read between every two neighbours taken
+    assert np.isfinite(whole.theta_middle).sum() >= min(2 * cycles - 3, 2 * (MAX_APEX // 3))
+
+
 def hyperbolic_sawtooth(t, P, w, rise=0.15):
     """Sawtooth of unit amplitude, rising over ``rise`` of the period and falling
     over the rest, whose corners are the robust method's model: the slope turns
@@ -67,6 +90,23 @@ def hyperbolic_sawtooth(t, P, w, rise=0.15):
     g = tau / np.sqrt(tau ** 2 + w ** 2)
     slope = m - b * np.where(near_peak, g, -g)
     return np.cumsum(slope) * (t[1] - t[0])
+
+
+@pytest.mark.parametrize("cycles", [81, 90, 120])
+def test_a_long_sawtooth_reads_both_its_ramps(cycles):
+    # a sawtooth's middle slopes differ between its fast and its slow ramp:
+    # the neighbours taken from a long record read both, as many of each,
+    # and the index is that of its first twenty cycles
+    from valvediag.analysis.bi import W_GRID
+
+    h, P = 1.0, 400.0
+    t = np.arange(int(cycles * P)) * h
+    x = hyperbolic_sawtooth(t, P, float(W_GRID[12]) * P)
+    x = x + np.random.default_rng(2).normal(0.0, 0.002, t.size)
+    whole = backlash_index(x, h)
+    part = backlash_index(x[:int(20 * P)], h)
+    assert whole.bi == pytest.approx(part.bi, rel=0.05)
+    assert whole.verdict == part.verdict
 
 
 @pytest.mark.parametrize("w_share,expected", [(0.005, "stiction"), (0.03, "backlash")])

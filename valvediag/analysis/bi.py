@@ -92,7 +92,9 @@ NREF = 100.0
 AFTER_FRACTION = 0.25
 #: Rounding widths searched by the robust fit [fraction of the period].
 W_GRID = np.r_[0.0, np.geomspace(0.001, 0.3, 23)]
-#: At most this many apices enter the pooled fit (spread over the record).
+#: At most this many apices enter the pooled fit: runs of three neighbours
+#: spread over the record, so that a rising and a falling middle slope are
+#: read in each.
 MAX_APEX = 80
 #: Working resolution of the robust fit [samples per period]: finer records
 #: are subsampled to this.
@@ -455,10 +457,6 @@ def robust_bi_kernel(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
     if ai.size < 2:
         return (np.nan, P, np.nan, np.nan, ai * r, asg, empty_f, empty_f, empty_i, empty_f,
                 empty_p, np.nan, r)
-    if ai.size > MAX_APEX:
-        sel = np.round(np.linspace(0, ai.size - 1, MAX_APEX)).astype(np.int64)
-        ai = ai[sel]
-        asg = asg[sel]
     # each apex window reaches at most half-way to its neighbours (their
     # middle points), so that a sawtooth's short side is not fitted across
     # the next corner
@@ -473,10 +471,23 @@ def robust_bi_kernel(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
             qa = min(qa, (ai[j + 1] - ai[j]) // 2)
         qbs[j] = max(3, qb)
         qas[j] = max(3, qa)
+    # neighbours: apex j + 1 follows apex j in the record
+    adjacent = np.ones(max(ai.size - 1, 0), dtype=np.bool_)
+    if ai.size > MAX_APEX:
+        # runs of three neighbouring apices spread over the record: a middle
+        # slope is read between neighbours only, and each run reads a rising
+        # and a falling one (a sawtooth's differ)
+        starts = np.round(np.linspace(0, ai.size - 3, MAX_APEX // 3)).astype(np.int64)
+        sel = np.unique(np.concatenate((starts, starts + 1, starts + 2)))
+        adjacent = np.diff(sel) == 1
+        ai = ai[sel]
+        asg = asg[sel]
+        qbs = qbs[sel]
+        qas = qas[sel]
     app = 0.0
     cnt = 0
     for j in range(ai.size - 1):
-        if asg[j] != asg[j + 1]:
+        if adjacent[j] and asg[j] != asg[j + 1]:
             app += abs(yd[ai[j + 1]] - yd[ai[j]])
             cnt += 1
     app = app / cnt if cnt > 0 else 2.0 * band / 0.2
@@ -541,7 +552,7 @@ def robust_bi_kernel(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
     hm = max(1, int(round(Pd / 20.0)))
     thm = np.full(mid.size, np.nan)
     for j in range(mid.size):
-        if asg[j] == asg[j + 1]:
+        if asg[j] == asg[j + 1] or not adjacent[j]:
             continue
         c = mid[j]
         lo = max(c - hm, ai[j])
