@@ -224,6 +224,10 @@ def test_short_breaks_are_bridged_and_long_ones_kept():
     assert np.isnan(joined.pv[2000:2010]).all()
     assert np.array_equal(joined.op, aligned.op)
     assert bridge_short_breaks(joined) == (joined, 0)
+    # the samples drawn are marked; a second, longer bridge adds its own marks
+    assert np.array_equal(joined.bridged, np.isnan(pv) & ~np.isin(np.arange(N), range(2000, 2010)))
+    whole, _ = bridge_short_breaks(joined, 10)
+    assert whole.segments == ((0, N),) and np.array_equal(whole.bridged, np.isnan(pv))
 
 
 def test_a_bridged_break_holds_the_set_point_and_draws_pv_and_op():
@@ -245,6 +249,14 @@ def test_a_bridged_break_holds_the_set_point_and_draws_pv_and_op():
     gap = slice(2000, 2010)
     assert np.all(joined.sp[gap] == 52.0)
     assert np.all(np.isfinite(joined.pv[gap])) and np.all(np.isfinite(joined.op[gap]))
+    # the line is marked as drawn, not measured: a model fitted to the
+    # record scores only the samples that were measured
+    assert aligned.bridged is None
+    assert np.array_equal(np.flatnonzero(joined.bridged), np.flatnonzero(~aligned.valid))
+    measured = joined.measured_pv(1990, 2020)
+    assert np.isnan(measured[10:20]).all()
+    assert np.isfinite(np.delete(measured, range(10, 20))).all()
+    assert np.array_equal(joined.measured_pv(0, 1000), joined.pv[:1000])
 
 
 def _triangle(n=20000, period=600, swing=1.8, noise=0.01, seed=0):

@@ -96,6 +96,11 @@ class AlignedLoop:
     max_gaps : mapping of str to float
         Longest interval interpolated across, per analog role (``pv``, ``op``,
         ``mv``) [s].
+    bridged : numpy.ndarray or None
+        Boolean mask of the grid points drawn by a straight line across a
+        break between two stretches
+        (:func:`~valvediag.analysis.quality.bridge_short_breaks`): valid, but
+        not measured. None where nothing was bridged.
     """
 
     t: np.ndarray
@@ -112,14 +117,26 @@ class AlignedLoop:
     start: dt.datetime | None
     role_valid: Mapping[str, np.ndarray] = field(default_factory=dict)
     max_gaps: Mapping[str, float] = field(default_factory=dict)
+    bridged: np.ndarray | None = None
 
     def __post_init__(self):
-        for name in ("t", "time", "pv", "op", "sp", "mv", "mode", "valid"):
+        for name in ("t", "time", "pv", "op", "sp", "mv", "mode", "valid", "bridged"):
             arr = getattr(self, name)
             if arr is not None:
                 arr.flags.writeable = False
         for arr in self.role_valid.values():
             arr.flags.writeable = False
+
+    def measured_pv(self, a: int = 0, b: int | None = None) -> np.ndarray:
+        """The PV over grid points ``[a, b)``, NaN where a break was bridged.
+
+        A model fitted to the record scores only what was measured: a line
+        drawn over a break is no measurement, and its kinks at either end
+        would be fitted as the valve's."""
+        pv = np.array(self.pv[a:b], dtype=float)
+        if self.bridged is not None:
+            pv[self.bridged[a:b]] = np.nan
+        return pv
 
     @property
     def n(self) -> int:

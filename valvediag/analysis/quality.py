@@ -914,8 +914,9 @@ def bridge_short_breaks(aligned: AlignedLoop, max_len: int = BRIDGE_SAMPLES
     bridged : AlignedLoop
         PV, OP and MV with each break of at most ``max_len`` invalid samples
         between two valid ones filled by a straight line
-        (:func:`bridge_short_gaps`), and the segments joined; the original
-        when there is none.
+        (:func:`bridge_short_gaps`), the segments joined, and the points drawn
+        marked (``bridged``, with those marked before); the original when
+        there is none.
     samples : int
         Grid samples made valid.
 
@@ -924,9 +925,13 @@ def bridge_short_breaks(aligned: AlignedLoop, max_len: int = BRIDGE_SAMPLES
     Scattered bad samples (a historian's ``Bad Input`` now and then, one in
     twenty say) cut a record into stretches too short to analyse, though
     each break is shorter than anything a valve does. Breaks longer than
-    ``max_len`` are left alone (the scan bridges up to two minutes:
-    :data:`valvediag.scan.loop.BRIDGE_GAP_S`). The record's data quality is
-    measured before this, on what was recorded.
+    ``max_len`` are left alone (the scan bridges up to two minutes, or up to
+    a quarter of the period of a cycle that the record shows:
+    :data:`valvediag.scan.loop.BRIDGE_GAP_S`,
+    :data:`valvediag.scan.loop.BRIDGE_PERIOD_SHARE`). The record's data
+    quality is measured before this, on what was recorded. A line drawn is
+    no measurement: a model fitted to the record should not score it
+    (:meth:`AlignedLoop.measured_pv`).
     """
     segs = aligned.segments
     breaks = [(b, a) for (_, b), (a, _) in zip(segs, segs[1:]) if a - b <= max_len]
@@ -943,6 +948,9 @@ def bridge_short_breaks(aligned: AlignedLoop, max_len: int = BRIDGE_SAMPLES
     valid = aligned.valid.copy()
     for b, a in breaks:
         valid[b:a] = np.isfinite(arrays["pv"][b:a]) & np.isfinite(arrays["op"][b:a])
+    bridged = valid & ~aligned.valid
+    if aligned.bridged is not None:
+        bridged |= aligned.bridged
     out = dataclasses.replace(aligned, **arrays, valid=valid,
-                              segments=contiguous_segments(valid))
+                              segments=contiguous_segments(valid), bridged=bridged)
     return out, int(valid.sum() - aligned.valid.sum())

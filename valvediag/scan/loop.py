@@ -55,15 +55,19 @@ MIN_SEGMENT_S = 600.0
 #: dozens of its cycles.
 ENOUGH_SAMPLES = 600
 #: Longest gap in a record bridged by a straight line before it is analysed
-#: [s] (at least :data:`~valvediag.analysis.quality.BRIDGE_SAMPLES` samples):
-#: a minute or two missing now and then (a collector's restart, a lost page
-#: of an export) would otherwise cut a day into snapshots, each judged alone
-#: ...
+#: [s] (at least :data:`~valvediag.analysis.quality.BRIDGE_SAMPLES` samples),
+#: where the longest stretch shows no oscillation: a minute or two missing
+#: now and then (a collector's restart, a lost page of an export) would
+#: otherwise cut a day into snapshots, each judged alone.
 BRIDGE_GAP_S = 120.0
-#: ... and at most this share of the period of the oscillation that the
-#: longest stretch shows, if it shows one: a line drawn over a fast flow's
-#: cycles would erase them.
-BRIDGE_PERIOD_SHARE = 0.1
+#: Where the longest stretch oscillates, gaps of up to this share of its
+#: period are bridged instead: a line over a quarter of a cycle leaves the
+#: cycle's turns measured on either side, where a line over a fast flow's
+#: cycles would erase them, and a slow level's cycle (20-75 minutes) in
+#: stretches of 55 minutes is read as no oscillation at all ...
+BRIDGE_PERIOD_SHARE = 0.25
+#: ... up to this long [s].
+BRIDGE_GAP_MAX_S = 1800.0
 #: Block length of the activity screen inside a segment [periods].
 BLOCK_PERIODS = 4.0
 #: A block is active when its half range reaches this share of the segment amplitude ...
@@ -376,8 +380,8 @@ def valve_fault_size(aligned: AlignedLoop, a: int, b: int, fault: str,
     ptype = "self-regulating" if process_type == "self-regulating" else "integrating"
     sp = aligned.sp[a:b:k] if aligned.sp is not None else None
     try:
-        out = estimate_valve_size(aligned.pv[a:b:k], aligned.op[a:b:k], k * h, fault,
-                                  ptype, sp=sp)
+        out = estimate_valve_size(aligned.measured_pv(a, b)[::k], aligned.op[a:b:k], k * h,
+                                  fault, ptype, sp=sp)
     except Exception as exc:  # noqa: BLE001 - a size is extra evidence, never a failed loop
         keys = ("S", "J") if fault == "stiction" else ("DB",)
         out = {k: math.nan for k in keys}
@@ -458,7 +462,7 @@ def lag_checked_kind(aligned: AlignedLoop, a: int, b: int, *, period: float = ma
     a += off
     sp = aligned.sp[a:b:k] if aligned.sp is not None else None
     try:
-        return valve_kind(aligned.pv[a:b:k], aligned.op[a:b:k], k * h, sp=sp)
+        return valve_kind(aligned.measured_pv(a, b)[::k], aligned.op[a:b:k], k * h, sp=sp)
     except Exception as exc:  # noqa: BLE001 - a check of the verdict, never a failed loop
         return ValveKind(kind="", reason=f"the model fit failed: {type(exc).__name__}: {exc}")
 
@@ -714,10 +718,12 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     is its longest stretch's, or, where a stretch reads a dead response (its
     PV ignored the OP's travel), the longest such stretch's: a shorter
     stretch's OP may have travelled where the longest one's did not.
-    Gaps of up to :data:`BRIDGE_GAP_S`, and of at most a tenth of the period
-    of the oscillation the longest stretch shows, are bridged by straight
-    lines first (``breaks_bridged`` in the evidence counts the samples
-    drawn). The classifier analyses one gap-free segment at a time, so a day
+    Gaps of up to :data:`BRIDGE_GAP_S`, or of up to a quarter of the period
+    of the oscillation the longest stretch shows (where the record so joined
+    shows it regular), are bridged by straight lines first
+    (``breaks_bridged`` in the evidence counts the samples drawn; the model
+    fits score only measured samples: :meth:`AlignedLoop.measured_pv`).
+    The classifier analyses one gap-free segment at a time, so a day
     split by longer gaps is analysed in pieces, those of at least
     :data:`MIN_SEGMENT_S` (or :data:`ENOUGH_SAMPLES` samples, where they
     last less); an oscillation that occupies
@@ -813,20 +819,47 @@ def _pooled_clock(seg_diag, h: float) -> PhaseWander | None:
     return pooled_phase_wander([c for c, _ in clocks], [s for _, s in clocks])
 
 
-def _bridge_samples(aligned: AlignedLoop) -> int:
-    """Longest break between a record's stretches to bridge [samples]: up to
-    :data:`BRIDGE_GAP_S`, and :data:`BRIDGE_PERIOD_SHARE` of the period of the
-    longest stretch's oscillation where it has one."""
-    segs, h = aligned.segments, aligned.sample_time
-    if len(segs) < 2:
-        return BRIDGE_SAMPLES
+def _longest_period(aligned: AlignedLoop, *, regular: bool = False) -> float:
+    """Period of the oscillation the record's longest stretch shows [s]; NaN
+    where it shows none (or, with ``regular``, no regular one)."""
+    a, b = max(aligned.segments, key=lambda s: s[1] - s[0], default=(0, 0))
+    if b - a < MIN_SEGMENT_SAMPLES:
+        return math.nan
+    osc = detect_oscillation(aligned.pv[a:b], aligned.sample_time)
+    return osc.period if osc.is_regular or not regular else math.nan
+
+
+def _bridged(aligned: AlignedLoop) -> tuple[AlignedLoop, int]:
+    """The record with its short breaks bridged, and the samples drawn.
+
+    Scattered bad samples first (:data:`~valvediag.analysis.quality.BRIDGE_SAMPLES`
+    in a row), then the gaps between stretches: up to :data:`BRIDGE_GAP_S`,
+    or, where the longest stretch oscillates, up to
+    :data:`BRIDGE_PERIOD_SHARE` of its period (at most
+    :data:`BRIDGE_GAP_MAX_S`). A bridge longer than :data:`BRIDGE_GAP_S`
+    stands only where the record it joins shows a regular oscillation whose
+    period makes every gap bridged short enough: a stretch of 55 minutes
+    shows one or two cycles of a slow level, whose period it reads roughly,
+    and a wandering load's half swing reads as a period too."""
+    aligned, drawn = bridge_short_breaks(aligned)
+    if len(aligned.segments) < 2:
+        return aligned, drawn
+    h = aligned.sample_time
     limit = BRIDGE_GAP_S
-    a, b = max(segs, key=lambda s: s[1] - s[0])
-    if b - a >= MIN_SEGMENT_SAMPLES:
-        period = detect_oscillation(aligned.pv[a:b], h).period
-        if math.isfinite(period):
-            limit = min(limit, BRIDGE_PERIOD_SHARE * period)
-    return max(BRIDGE_SAMPLES, int(limit // h))
+    period = _longest_period(aligned)
+    if math.isfinite(period):
+        limit = min(BRIDGE_GAP_MAX_S, BRIDGE_PERIOD_SHARE * period)
+        if limit > BRIDGE_GAP_S:
+            segs = aligned.segments
+            widest = max((a - b for (_, b), (a, _) in zip(segs, segs[1:])
+                          if a - b <= limit // h), default=0)
+            wide, more = bridge_short_breaks(aligned, max(BRIDGE_SAMPLES, int(limit // h)))
+            joined = _longest_period(wide, regular=True) if more else math.nan
+            if math.isfinite(joined) and widest * h <= BRIDGE_PERIOD_SHARE * joined:
+                return wide, drawn + more
+            limit = BRIDGE_GAP_S
+    aligned, more = bridge_short_breaks(aligned, max(BRIDGE_SAMPLES, int(limit // h)))
+    return aligned, drawn + more
 
 
 def _duration(seconds: float) -> str:
@@ -859,9 +892,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     # scattered bad samples and short gaps must not cut the record into
     # stretches too short to use (the gaps' limit read once the scattered
     # samples are bridged)
-    aligned, breaks_bridged = bridge_short_breaks(aligned)
-    aligned, more = bridge_short_breaks(aligned, _bridge_samples(aligned))
-    breaks_bridged += more
+    aligned, breaks_bridged = _bridged(aligned)
     window_s = (job.end - job.start).total_seconds()
     h = aligned.sample_time
     min_len = _shortest_stretch(h)
