@@ -787,13 +787,13 @@ def _pooled_rests(seg_diag, process_type: str):
     pooled = pooled_reversal_rests([d.rests for _, _, d in read])
     if not pooled.found:
         return None
+    used = [e for e in read if e[2].rests.sense == pooled.sense]
     known = process_type != "unknown"
     src = "self-regulating process, loop registry" if known else \
         "process type not known, read as self-regulating"
-    reason = (f"a dead band at the OP's reversals: over {len(read)} stretches, {pooled.reason} "
+    reason = (f"a dead band at the OP's reversals: over {len(used)} stretches, {pooled.reason} "
               f"({src}); method: the valve's rests at the OP's reversals pooled over the "
               "record's stretches")
-    used = [e for e in read if e[2].rests.sense == pooled.sense]
     return ("backlash", pooled.confidence * (1.0 if known else 0.8), reason, used,
             {"reversal_rests": dict(pooled.as_dict(), stretches=len(used))})
 
