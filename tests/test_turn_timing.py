@@ -54,30 +54,59 @@ def test_classify_names_the_slip_behind_a_lag_and_keeps_the_dead_band():
     assert d.evidence["turn_timing"]["kind"] == ""
 
 
-def test_an_op_stored_far_apart_places_no_reversal(monkeypatch):
+def _stored(op, deadband):
+    """``op`` stored by exception with ``deadband`` and read back by straight lines."""
+    from valvediag.synth.plant import exception_deadband
+
+    keep = np.flatnonzero(exception_deadband(op, deadband))
+    return np.interp(np.arange(op.size), keep, op[keep])
+
+
+def test_an_op_stored_far_apart_is_placed_by_the_controllers_law(monkeypatch):
     """A loose valve's OP stored by exception with a deadband of a tenth or a
     fifth of its swing: read back by straight lines, its extremes fall
     anywhere between two stored points, which made a dead band read as a
     slip (the synthetic plant's loose level valves, no lag, 0.36-0.82 after
-    the reversal). Such turns are not read; an OP stored finely still is."""
+    the reversal). Such a reversal is placed where the PI law, fitted to the
+    stored moves, reverses; where the law is not trusted it is not read."""
     import valvediag.analysis.turn_timing as tt
-    from valvediag.synth.plant import exception_deadband
+    import valvediag.workbench.size as size
 
-    pv, op, _ = level_cycle("backlash", 0.0)
+    pv, op, sp = level_cycle("backlash", 0.0)
     period = detect_oscillation(pv, H).period
     swing = np.ptp(np.percentile(op, [5, 95]))
-
-    def stored(deadband):
-        keep = np.flatnonzero(exception_deadband(op, deadband))
-        return np.interp(np.arange(op.size), keep, op[keep])
-
     for share in (0.1, 0.2):
-        assert turn_timing(pv, stored(share * swing), H, period).turns == 0
-    fine = turn_timing(pv, stored(0.002 * swing), H, period)
+        placed = turn_timing(pv, _stored(op, share * swing), H, period, sp=sp)
+        # the dead band still reads as one: the level has turned by the reversal
+        assert placed.kind == "" and placed.turns >= 20 and placed.share < SLIP_SHARE / 4
+    fine = turn_timing(pv, _stored(op, 0.002 * swing), H, period)
     assert fine.kind == "" and fine.turns >= 20 and fine.share < SLIP_SHARE / 4
-    # without the guard the coarsely stored OP reads a slip
+    # a law that explains too little of the stored moves places nothing
+    monkeypatch.setattr(size, "REBUILD_R2", 1.01)
+    for share in (0.1, 0.2):
+        assert turn_timing(pv, _stored(op, share * swing), H, period, sp=sp).turns == 0
+    # and without the guard the coarsely stored OP reads a slip
     monkeypatch.setattr(tt, "OP_RESOLUTION", np.inf)
-    assert turn_timing(pv, stored(0.2 * swing), H, period).kind == "stiction"
+    assert turn_timing(pv, _stored(op, 0.2 * swing), H, period).kind == "stiction"
+
+
+def test_a_sticky_level_with_its_op_stored_far_apart_still_turns_after_it(monkeypatch):
+    """The slip behind a lag, its OP stored by exception with a fifth of its
+    swing: no reversal is read from the stored points, and the controller's
+    law places them: the level turns after them, as with the OP in full
+    (the realistic benchmark's sticky levels with a compressed OP read
+    ``backlash`` by the index, without a turn read)."""
+    import valvediag.workbench.size as size
+
+    pv, op, sp = level_cycle("kano", 12.0)
+    period = detect_oscillation(pv, H).period
+    swing = np.ptp(np.percentile(op, [5, 95]))
+    full = turn_timing(pv, op, H, period)
+    placed = turn_timing(pv, _stored(op, 0.2 * swing), H, period, sp=sp)
+    assert placed.kind == "stiction" and placed.turns >= 100
+    assert abs(placed.share - full.share) < 0.1
+    monkeypatch.setattr(size, "REBUILD_R2", 1.01)
+    assert turn_timing(pv, _stored(op, 0.2 * swing), H, period, sp=sp).turns == 0
 
 
 def test_turn_timing_abstains_on_coarse_or_bad_records():

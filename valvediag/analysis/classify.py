@@ -1089,7 +1089,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     if bres_verdict in ("backlash", "undecided"):
         # a rounded turn is a dead band's only if the level has turned by the
         # time the OP reverses; a slip behind a lag turns it after
-        timing = turn_timing(x, u, h, osc.period)
+        timing = turn_timing(x, u, h, osc.period, sp=s_ab)
         ev["turn_timing"] = timing.as_dict()
         if timing.kind == "stiction":
             conf = c_data * proc_conf * (0.5 + 0.4 * min(1.0, timing.share / (2 * SLIP_SHARE)))

@@ -142,7 +142,41 @@ def _windows(cs: np.ndarray, cty: np.ndarray, a: np.ndarray, b: np.ndarray):
     return mean, slope, tm
 
 
-def turn_timing(pv, op, sample_time: float, period: float) -> TurnTiming:
+def _placed_reversals(x, u, h, m, w, delta, sp, idx, sign):
+    """The OP's reversals ``idx`` (``sign`` +1 at a maximum), each where the record places it, and which are placed.
+
+    A reversal is placed where the stored OP's points around it lie within
+    :data:`OP_RESOLUTION` of the ``m`` samples of a period; the others move
+    to the reversal of the same sign that the OP rebuilt from the
+    controller's law makes within the stored points' span (``w`` samples
+    either side), where the law explains the stored moves."""
+    from ..workbench.data import rebuild_compressed_op
+    from ..workbench.kernels import turning_points
+    from ..workbench.size import REBUILD_R2
+
+    kept = stored_points(u)
+    j = np.searchsorted(kept, idx, side="right")
+    left, right = kept[np.maximum(j - 1, 0)], kept[np.minimum(j, kept.size - 1)]
+    resolved = right - left <= max(2.0, OP_RESOLUTION * m)
+    if resolved.all():
+        return idx, resolved
+    rebuilt, r2 = rebuild_compressed_op(x, u, h, sp=sp)
+    if not (np.isfinite(r2) and r2 >= REBUILD_R2):
+        return idx, resolved
+    ridx, rsign, _ = turning_points(savgol_filter(rebuilt, w, 2), delta)
+    if ridx.size == 0:
+        return idx, resolved
+    p = np.searchsorted(ridx, idx)
+    near = np.clip(np.stack([p - 1, p]), 0, ridx.size - 1)          # (2, reversals)
+    at, same = ridx[near], rsign[near] == sign
+    inside = same & (at >= left - w) & (at <= right + w)
+    best = np.argmin(np.where(inside, np.abs(at - idx), np.iinfo(np.int64).max), axis=0)
+    cols = np.arange(idx.size)
+    take = ~resolved & inside[best, cols]
+    return np.where(take, at[best, cols], idx), resolved | take
+
+
+def turn_timing(pv, op, sample_time: float, period: float, *, sp=None) -> TurnTiming:
     """Read a level's turns against its OP's reversals: a dead band or a slip behind a lag.
 
     Parameters
@@ -154,6 +188,10 @@ def turn_timing(pv, op, sample_time: float, period: float) -> TurnTiming:
         [s]
     period : float
         Oscillation period [s] (:func:`~valvediag.analysis.detect_oscillation`).
+    sp : array_like, shape (n,), optional
+        Set point [PV unit]; with a compressed OP, the controller's law is
+        fitted to the control error ``SP - PV`` (constant set point when
+        not given).
 
     Returns
     -------
@@ -182,6 +220,18 @@ def turn_timing(pv, op, sample_time: float, period: float) -> TurnTiming:
     read back by straight lines has its extreme anywhere between two stored
     points: on the synthetic plant's loose level valves, whose OPs are
     stored so, turns read 0.36-0.82 after the reversal without this guard).
+    Such a reversal is placed instead where the controller made it: on the
+    OP rebuilt between its stored points from the PI law fitted to the
+    stored moves (:func:`~valvediag.workbench.data.rebuild_compressed_op`),
+    where that law explains at least the workbench's
+    :data:`~valvediag.workbench.size.REBUILD_R2` of them, taking the
+    rebuilt OP's reversal of the same sign within the stored points' span.
+    The law sees the recorded level, which the valve does not enter, so the
+    reversal it places is the controller's (the loose level valves of the
+    realistic benchmark's study and development seeds with a compressed
+    OP read at most 0.09 so, as without it); where the law does not hold
+    (an OP held at a limit, derivative action, a change of tuning) the
+    reversal is not read.
 
     A dead band reads at most its lag's tail, about ``2 (L / T_f)^2`` for a
     lag ``L`` and a valve that follows the OP for ``T_f``; a slip behind a
@@ -219,21 +269,19 @@ def turn_timing(pv, op, sample_time: float, period: float) -> TurnTiming:
 
     us = savgol_filter(u, w, 2)
     lo, hi = np.percentile(us, [5, 95])
-    idx = turning_points(us, 0.3 * (hi - lo))[0] if hi > lo else np.zeros(0, int)
+    idx, sign, _ = turning_points(us, 0.3 * (hi - lo)) if hi > lo else (np.zeros(0, int),) * 3
     if idx.size < 3:
         return TurnTiming("", "fewer than three reversals of the OP", **common)
-    i0, i, i1 = idx[:-2], idx[1:-1], idx[2:]
-    d0, d1 = i - i0, i1 - i
-    ab, bb = i0 + (RAMP_FROM * d0).astype(int), i0 + (RAMP_TO * d0).astype(int)
-    aa, ba = i + (RAMP_FROM * d1).astype(int), i + (RAMP_TO * d1).astype(int)
     k = max(1, int(round(m / 100)))
     # the OP's reversal must be where the historian stored it: an OP read
     # back between stored points far apart places its extreme anywhere
-    # between them
-    kept = stored_points(u)
-    j = np.searchsorted(kept, i, side="right")
-    gap = kept[np.minimum(j, kept.size - 1)] - kept[np.maximum(j - 1, 0)]
-    resolved = gap <= max(2.0, OP_RESOLUTION * m)
+    # between them; there the controller's law places it, where it holds
+    i, resolved = _placed_reversals(x, u, h, m, w, 0.3 * (hi - lo), sp, idx, sign)
+    i0, i, i1 = i[:-2], i[1:-1], i[2:]
+    resolved = resolved[1:-1]
+    d0, d1 = i - i0, i1 - i
+    ab, bb = i0 + (RAMP_FROM * d0).astype(int), i0 + (RAMP_TO * d0).astype(int)
+    aa, ba = i + (RAMP_FROM * d1).astype(int), i + (RAMP_TO * d1).astype(int)
     ok = ((bb - ab >= MIN_RAMP) & (ba - aa >= MIN_RAMP) & (i - k >= 0) & (i + k + 1 <= x.size)
           & resolved)
     i, ab, bb, aa, ba = i[ok], ab[ok], bb[ok], aa[ok], ba[ok]
