@@ -929,3 +929,33 @@ def test_a_levels_kinks_are_counted_over_the_stretches_of_a_record_cut_by_gaps()
     assert r.verdict == "stiction", r.reason
     assert "jumps of the slope of the PV are valve events" in r.reason
     assert "pooled over the record's stretches" in r.reason
+
+
+@pytest.mark.parametrize("klass, seed, index, verdict", [
+    ("level-stiction-cycle", 14, 3, "stiction"),
+    ("level-stiction-sawtooth", 13, 2, "stiction"),
+    ("level-backlash-cycle", 14, 3, "backlash"),
+])
+def test_a_levels_turns_against_a_compressed_ops_reversals_placed_by_the_pi_law(
+        klass, seed, index, verdict):
+    # study draws of the realistic benchmark whose OP the historian stored by
+    # exception: no turn was placed against the stored OP, and the two sticky
+    # levels read backlash by their rounded turns. The PI law fitted to the
+    # stored moves places the reversals: the sticky levels' turns come after
+    # them, the loose level's before
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    t = np.arange(loop.pv.size) * loop.sample_time
+    spec = LoopSpec("L1", "L1.PV", "L1.OP", sp_tag="L1.SP", process_type="integrating",
+                    span=100.0)
+    r = analyse_loop(job_for(spec, loop.pv.size, loop.sample_time),
+                     {"pv": frame(t, loop.pv), "op": frame(t, loop.op), "sp": frame(t, loop.sp)},
+                     ScanConfig(window_hours=24))
+    timing = r.evidence["turn_timing"]
+    assert timing["reversals_by_law"] >= 3, timing
+    assert r.verdict == verdict, r.reason
+    if verdict == "stiction":
+        assert "turns after the OP has reversed" in r.reason
+    else:
+        assert timing["share_after_op_reversal"] < 0.1

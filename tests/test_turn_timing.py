@@ -105,6 +105,10 @@ def test_a_sticky_level_with_its_op_stored_far_apart_still_turns_after_it(monkey
     placed = turn_timing(pv, _stored(op, 0.2 * swing), H, period, sp=sp)
     assert placed.kind == "stiction" and placed.turns >= 100
     assert abs(placed.share - full.share) < 0.1
+    # the reversals the stored points did not place were placed by the law, and said so
+    assert full.by_law == 0 and placed.by_law >= placed.turns // 2
+    assert placed.as_dict()["reversals_by_law"] == placed.by_law
+    assert "placed by the PI law" in placed.reason
     monkeypatch.setattr(size, "REBUILD_R2", 1.01)
     assert turn_timing(pv, _stored(op, 0.2 * swing), H, period, sp=sp).turns == 0
 

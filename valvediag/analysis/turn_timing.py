@@ -91,6 +91,9 @@ class TurnTiming:
         That share at each turn read.
     at : numpy.ndarray
         Sample of the OP's reversal at each turn read.
+    by_law : int
+        Turns read whose reversal the compressed OP did not place and the
+        controller's law did (see :func:`turn_timing`, Notes).
     """
 
     kind: str
@@ -99,6 +102,7 @@ class TurnTiming:
     share: float = math.nan
     shares: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     at: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
+    by_law: int = 0
     pv: np.ndarray | None = field(default=None, repr=False)
     op: np.ndarray | None = field(default=None, repr=False)
     sample_time: float = 1.0
@@ -107,7 +111,8 @@ class TurnTiming:
         """The figures as plain types."""
         return {"kind": self.kind, "turns": self.turns,
                 "share_after_op_reversal": (round(self.share, 3) if math.isfinite(self.share)
-                                            else None)}
+                                            else None),
+                "reversals_by_law": self.by_law}
 
     def plot(self, ax=None):
         """PV and OP, with a line at each OP reversal read, red where the level turned after it.
@@ -143,7 +148,8 @@ def _windows(cs: np.ndarray, cty: np.ndarray, a: np.ndarray, b: np.ndarray):
 
 
 def _placed_reversals(x, u, h, m, w, delta, sp, idx, sign):
-    """The OP's reversals ``idx`` (``sign`` +1 at a maximum), each where the record places it, and which are placed.
+    """The OP's reversals ``idx`` (``sign`` +1 at a maximum), each where the
+    record places it; which are placed, and which of those the law placed.
 
     A reversal is placed where the stored OP's points around it lie within
     :data:`OP_RESOLUTION` of the ``m`` samples of a period; the others move
@@ -158,14 +164,15 @@ def _placed_reversals(x, u, h, m, w, delta, sp, idx, sign):
     j = np.searchsorted(kept, idx, side="right")
     left, right = kept[np.maximum(j - 1, 0)], kept[np.minimum(j, kept.size - 1)]
     resolved = right - left <= max(2.0, OP_RESOLUTION * m)
+    none = np.zeros(idx.size, bool)
     if resolved.all():
-        return idx, resolved
+        return idx, resolved, none
     rebuilt, r2 = rebuild_compressed_op(x, u, h, sp=sp)
     if not (np.isfinite(r2) and r2 >= REBUILD_R2):
-        return idx, resolved
+        return idx, resolved, none
     ridx, rsign, _ = turning_points(savgol_filter(rebuilt, w, 2), delta)
     if ridx.size == 0:
-        return idx, resolved
+        return idx, resolved, none
     p = np.searchsorted(ridx, idx)
     near = np.clip(np.stack([p - 1, p]), 0, ridx.size - 1)          # (2, reversals)
     at, same = ridx[near], rsign[near] == sign
@@ -173,7 +180,7 @@ def _placed_reversals(x, u, h, m, w, delta, sp, idx, sign):
     best = np.argmin(np.where(inside, np.abs(at - idx), np.iinfo(np.int64).max), axis=0)
     cols = np.arange(idx.size)
     take = ~resolved & inside[best, cols]
-    return np.where(take, at[best, cols], idx), resolved | take
+    return np.where(take, at[best, cols], idx), resolved | take, take
 
 
 def turn_timing(pv, op, sample_time: float, period: float, *, sp=None) -> TurnTiming:
@@ -276,15 +283,15 @@ def turn_timing(pv, op, sample_time: float, period: float, *, sp=None) -> TurnTi
     # the OP's reversal must be where the historian stored it: an OP read
     # back between stored points far apart places its extreme anywhere
     # between them; there the controller's law places it, where it holds
-    i, resolved = _placed_reversals(x, u, h, m, w, 0.3 * (hi - lo), sp, idx, sign)
+    i, resolved, by_law = _placed_reversals(x, u, h, m, w, 0.3 * (hi - lo), sp, idx, sign)
     i0, i, i1 = i[:-2], i[1:-1], i[2:]
-    resolved = resolved[1:-1]
+    resolved, by_law = resolved[1:-1], by_law[1:-1]
     d0, d1 = i - i0, i1 - i
     ab, bb = i0 + (RAMP_FROM * d0).astype(int), i0 + (RAMP_TO * d0).astype(int)
     aa, ba = i + (RAMP_FROM * d1).astype(int), i + (RAMP_TO * d1).astype(int)
     ok = ((bb - ab >= MIN_RAMP) & (ba - aa >= MIN_RAMP) & (i - k >= 0) & (i + k + 1 <= x.size)
           & resolved)
-    i, ab, bb, aa, ba = i[ok], ab[ok], bb[ok], aa[ok], ba[ok]
+    i, ab, bb, aa, ba, by_law = i[ok], ab[ok], bb[ok], aa[ok], ba[ok], by_law[ok]
     t = np.arange(x.size, dtype=float)
     cs = np.r_[0.0, np.cumsum(x)]
     cty = np.r_[0.0, np.cumsum(t * x)]
@@ -299,6 +306,7 @@ def turn_timing(pv, op, sample_time: float, period: float, *, sp=None) -> TurnTi
     shares = ea[read] / (ea[read] + eb[read])
     at = i[read]
     n = int(shares.size)
+    common.update(by_law=int(by_law[read].sum()))
     if n < MIN_TURNS:
         return TurnTiming("", f"{n} turns read against the OP's reversals, fewer than "
                           f"{MIN_TURNS}", turns=n, shares=shares, at=at, **common)
@@ -311,4 +319,7 @@ def turn_timing(pv, op, sample_time: float, period: float, *, sp=None) -> TurnTi
         kind, why = "", (f"the level has mostly turned by the time the OP reverses (a median "
                          f"{100 * share:.0f}% of each turn comes after it, {n} turns): a "
                          "valve that moved with the OP, or a slip the controller answered late")
+    if common["by_law"]:
+        why += (f"; {common['by_law']} of the reversals placed by the PI law fitted to the "
+                "compressed OP's stored moves")
     return TurnTiming(kind, why, turns=n, share=share, shares=shares, at=at, **common)
