@@ -360,3 +360,20 @@ def test_a_record_in_full_precision_or_a_straight_ramp_has_no_quantum():
     # noise of several quanta moves nearly every sample: no staircase
     assert record_quantum(np.round(_triangle(noise=0.5) / 0.1) * 0.1) == 0.0
     assert record_quantum(np.round(_triangle(n=30, noise=0.01), 1)) == 0.0   # too few moves
+
+
+def test_drawn_lines_keep_the_lines_longer_than_a_short_bridge():
+    from valvediag.analysis.quality import BRIDGE_SAMPLES, drawn_lines
+
+    m = np.zeros(30, bool)
+    m[2:2 + BRIDGE_SAMPLES] = True            # a short bridge: left out
+    m[10:10 + BRIDGE_SAMPLES + 1] = True      # one sample longer: kept
+    m[25:] = True                             # to the end: kept
+    out = drawn_lines(m)
+    assert not out[:10].any()
+    assert out[10:10 + BRIDGE_SAMPLES + 1].all() and not out[10 + BRIDGE_SAMPLES + 1:25].any()
+    assert out[25:].all()
+    assert not drawn_lines(np.zeros(5, bool)).any()
+    with pytest.raises(ValueError, match="drawn"):
+        from valvediag import classify_loop
+        classify_loop(np.zeros(100), np.zeros(100), sample_time=1.0, drawn=np.zeros(99, bool))

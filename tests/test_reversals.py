@@ -352,3 +352,18 @@ def test_a_cascades_wandering_set_point_does_not_bar_the_legs():
             assert r.legs >= 5, r.reason
             found[valve] += r.found
     assert found["backlash"] >= 2 and found["linear"] == 0, found
+
+
+def test_a_leg_that_holds_a_line_drawn_across_a_gap_is_not_read():
+    # the PV and OP drawn by straight lines over ten minutes of every hour:
+    # the legs that hold a drawn sample are not read, the others are, and a
+    # mask of the wrong length is refused
+    pv, op, sp = _flow("backlash", {"DB": 3.0})
+    drawn = (np.arange(N) % 3600) >= 3000
+    full = reversal_rests(pv, op, H, sp=sp)
+    kept = reversal_rests(pv, op, H, sp=sp, drawn=drawn)
+    assert 0 < kept.legs < full.legs
+    assert all(not drawn[a:j + 1].any() for a, j in zip(kept.read.start, kept.read.turn))
+    assert reversal_rests(pv, op, H, sp=sp, drawn=np.zeros(N, bool)).legs == full.legs
+    with pytest.raises(ValueError, match="drawn"):
+        reversal_rests(pv, op, H, sp=sp, drawn=drawn[:-1])

@@ -959,3 +959,31 @@ def test_a_levels_turns_against_a_compressed_ops_reversals_placed_by_the_pi_law(
         assert "turns after the OP has reversed" in r.reason
     else:
         assert timing["share_after_op_reversal"] < 0.1
+
+
+def test_the_scan_tells_the_valve_readers_which_samples_it_drew(monkeypatch):
+    # a level in a slow cycle cut by two short breaks (8 s and 30 s of rows
+    # missing from a record at 1 s), bridged: classify_loop is told which
+    # samples were drawn
+    import valvediag.scan.loop as scan_loop
+
+    seen = {}
+    real = scan_loop.classify_loop
+
+    def spy(*args, **kw):
+        seen["drawn"] = kw.get("drawn")
+        return real(*args, **kw)
+
+    monkeypatch.setattr(scan_loop, "classify_loop", spy)
+    rng = np.random.default_rng(2)
+    t = np.arange(7200.0)
+    gone = ((t >= 3000) & (t < 3008)) | ((t >= 5000) & (t < 5030))
+    pv = 50 + 2 * np.sin(2 * np.pi * t / 1200) + rng.normal(0, 0.05, t.size)
+    op = 40 + 3 * np.cos(2 * np.pi * t / 1200) + rng.normal(0, 0.05, t.size)
+    spec = LoopSpec("L1", "L1.PV", "L1.OP", process_type="integrating", span=100.0)
+    r = analyse_loop(job_for(spec, t.size, 1.0),
+                     {"pv": frame(t[~gone], pv[~gone]), "op": frame(t[~gone], op[~gone])},
+                     ScanConfig(window_hours=24))
+    assert r.evidence["segments"] == 1
+    assert seen["drawn"] is not None
+    assert np.array_equal(np.flatnonzero(seen["drawn"]), np.flatnonzero(gone))

@@ -703,3 +703,32 @@ def test_a_cascades_inner_flow_slips_while_its_set_point_wanders(seed):
         else:
             assert not e.found, e.reason
             assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+
+
+def test_a_level_kinks_at_the_ends_of_a_line_drawn_across_a_gap_and_those_are_not_read():
+    """A healthy level running straight through its noise, a gap of 5 or 15
+    minutes bridged by a straight line between the two samples either side
+    (as the scan bridges a gap of up to a quarter of a cycle): the line
+    kinks the level at its ends by about the noise over the gap, and the
+    hinge fit reads those kinks anywhere in a window that holds the line.
+    Given the drawn samples, no window that holds one is read."""
+    from valvediag.analysis.quality import bridge_short_gaps
+
+    n, lines, masked = 12000, 0, 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        pv = 50 + 0.002 * np.arange(n) + rng.normal(0, 0.3, n)
+        op = 40 - 0.0006 * np.arange(n) + rng.normal(0, 0.02, n)
+        for gap in (300, 900):
+            drawn = np.zeros(n, bool)
+            drawn[6000:6000 + gap] = True
+            pv_b = bridge_short_gaps(np.where(drawn, np.nan, pv), gap)[0]
+            op_b = bridge_short_gaps(np.where(drawn, np.nan, op), gap)[0]
+            assert stick_slip_events(pv, op, H, process="integrating").events == 0
+            lines += stick_slip_events(pv_b, op_b, H, process="integrating").events
+            masked += stick_slip_events(pv_b, op_b, H, process="integrating",
+                                        drawn=drawn).events
+    assert lines >= 4
+    assert masked == 0
+    with pytest.raises(ValueError, match="drawn"):
+        stick_slip_events(pv_b, op_b, H, process="integrating", drawn=drawn[1:])

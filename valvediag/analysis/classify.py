@@ -66,8 +66,8 @@ from .bumps import (SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps,
 from .linearity import CycleShape, cycle_shape, mean_cycles
 from .oscillation import (Oscillation, PhaseWander, detect_oscillation, phase_wander,
                           turned_cycles)
-from .quality import (bridge_short_gaps, despike, longest_run, record_quantum, stored_points,
-                      white_noise_std)
+from .quality import (bridge_short_gaps, despike, drawn_lines, longest_run, record_quantum,
+                      stored_points, white_noise_std)
 from .reversals import ReversalRests, reversal_rests
 from .signature import (KIND_SHARE, SENSE_SKEW, ValveSignature, controller_lag,
                         cycle_transitions, horch_correlation, stick_slip_events,
@@ -534,7 +534,7 @@ def _oscillates(osc: Oscillation) -> bool:
 def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "unknown",
                   method: str = "robust", min_cycles: float = 3.0,
                   pv_compressed: bool = False, mv=None,
-                  record_s: float | None = None) -> LoopDiagnosis:
+                  record_s: float | None = None, drawn=None) -> LoopDiagnosis:
     """Classify one control loop from its recorded PV and OP.
 
     Parameters
@@ -579,6 +579,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         [s]; by default the stretch's own. A flow's two slips make a fault
         only in a snapshot that short
         (:func:`~valvediag.analysis.signature.stick_slip_events`).
+    drawn : array_like of bool, shape (n,), optional
+        True where the PV was not measured but drawn across a gap (the
+        scan bridges gaps of up to a quarter of a cycle): the valve events
+        and the rests at the OP's reversals are not read there.
 
     Returns
     -------
@@ -654,6 +658,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         mv = np.asarray(mv, dtype=float).ravel()
         if mv.size != pv.size:
             raise ValueError(f"pv has {pv.size} samples but mv has {mv.size}")
+    if drawn is not None:
+        drawn = np.asarray(drawn, dtype=bool).ravel()
+        if drawn.size != pv.size:
+            raise ValueError(f"pv has {pv.size} samples but drawn has {drawn.size}")
+        # a line over a few samples is what this function bridges itself
+        drawn = drawn_lines(drawn)
     base = dict(process_type=process_type, sample_time=h)
     ev: dict = {"method": method, "samples": int(pv.size)}
     travel = None
@@ -706,6 +716,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return verdict("insufficient-data", 0.95,
                        f"only {b - a} consecutive usable samples (need at least {MIN_SAMPLES})")
     x, u = pv[a:b], op[a:b]
+    drawn_ab = drawn[a:b] if drawn is not None and drawn[a:b].any() else None
     if mv is not None:
         m, _ = bridge_short_gaps(despike(mv)[0])
         if np.isfinite(m[a:b]).sum() >= MIN_SAMPLES:
@@ -796,7 +807,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         if pv_compressed:
             kinds = tuple(k for k in kinds if k != "integrating")
         for kind in kinds:
-            slips = stick_slip_events(x, u, h, process=kind, sp=ev_sp, record_s=record_s)
+            slips = stick_slip_events(x, u, h, process=kind, sp=ev_sp, record_s=record_s,
+                                      drawn=drawn_ab)
             read[kind] = slips
             if slips.found and slips.consistent < min_events:
                 # too few to make up the cycle: kept as evidence, not a verdict
@@ -877,7 +889,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         if process_type == "integrating" or level_by_steps():
             # a level runs on after the OP turns, whatever its valve does
             return None
-        rests = reversal_rests(x, u, h, sp=sp[a:b] if sp is not None else None)
+        rests = reversal_rests(x, u, h, sp=sp[a:b] if sp is not None else None,
+                               drawn=drawn_ab)
         rests_read["rests"] = rests
         ev["reversal_rests"] = rests.as_dict()
         if not rests.found:

@@ -42,7 +42,8 @@ from .align import AlignedLoop, contiguous_segments, to_epoch_us
 
 __all__ = ["DataQuality", "quality_metrics", "white_noise_std", "resolved_noise_std",
            "stored_resolution", "stored_points", "record_quantum", "despike",
-           "bridge_short_gaps", "bridge_short_breaks", "most_active_window", "longest_run",
+           "bridge_short_gaps", "bridge_short_breaks", "drawn_lines", "most_active_window",
+           "longest_run",
            "mask_frozen_pv", "FROZEN_REST_REPEAT", "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
 
 #: Mode texts meaning "the controller is not closing the loop".
@@ -897,6 +898,33 @@ def bridge_short_gaps(x, max_len: int = BRIDGE_SAMPLES) -> tuple[np.ndarray, int
     good = ~bad
     y[fill] = np.interp(np.flatnonzero(fill), np.flatnonzero(good), y[good])
     return y, int(fill.sum())
+
+
+def drawn_lines(bridged, max_len: int = BRIDGE_SAMPLES) -> np.ndarray:
+    """The samples of the lines drawn across gaps longer than ``max_len``.
+
+    Parameters
+    ----------
+    bridged : array_like of bool, shape (n,)
+        True where a sample was drawn rather than measured
+        (:attr:`AlignedLoop.bridged`).
+    max_len : int
+        Longest run left out [samples]: a line over a few samples is what
+        :func:`bridge_short_gaps` draws inside any stretch, shorter than
+        anything a valve does.
+
+    Returns
+    -------
+    numpy.ndarray of bool, shape (n,)
+    """
+    drawn = np.asarray(bridged, dtype=bool).ravel()
+    d = np.diff(np.r_[0, drawn.astype(np.int8), 0])
+    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    long = stops - starts > max_len
+    edges = np.zeros(drawn.size + 1, int)
+    np.add.at(edges, starts[long], 1)
+    np.add.at(edges, stops[long], -1)
+    return np.cumsum(edges[:-1]) > 0
 
 
 def bridge_short_breaks(aligned: AlignedLoop, max_len: int = BRIDGE_SAMPLES

@@ -277,8 +277,8 @@ def _gain(pv: np.ndarray, op: np.ndarray, lo: int, hi: int, noise: float):
     return float(inv[2] @ (A.T @ pv[lo:hi])), noise * math.sqrt(max(float(inv[2, 2]), 0.0))
 
 
-def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None = None
-                   ) -> ReversalRests:
+def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None = None,
+                   drawn=None) -> ReversalRests:
     """Find a dead band in a self-regulating loop by the valve's rests at the OP's reversals.
 
     Parameters
@@ -294,6 +294,10 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
         +1 when the PV rises with the OP, -1 when it falls; read from the
         record (:func:`~valvediag.analysis.signature.loop_sense`) when not
         given.
+    drawn : array_like of bool, shape (n,), optional
+        True where the PV was drawn across a gap rather than measured: a leg
+        that holds such a sample is not read (the PV's excursion and its
+        answer to the OP are not on record there).
 
     Returns
     -------
@@ -389,7 +393,9 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
       :func:`pooled_reversal_rests` (five minutes missing every hour on the
       realistic benchmark's study seeds 10-16, 4 loops a class: 14 of 28
       loose flows without a cycle read ``backlash``, where 10 did read
-      stretch by stretch, and 22 without the gaps);
+      stretch by stretch, and 22 without the gaps); where the scan joins
+      stretches by drawing the PV across a gap (``drawn``), the legs that
+      hold a drawn sample are not read either;
     * the OP is stored by a swinging door wider than its noise: its noise
       is then read at its stored resolution
       (:func:`~valvediag.analysis.quality.resolved_noise_std`), and a rest
@@ -444,6 +450,9 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
     turns, _, _ = turning_points(ops, 6.0 * op_noise / math.sqrt(m))
     turns = turns[(turns >= m) & (turns < pv.size - m)]
     sp = None if sp is None else np.asarray(sp, dtype=float).ravel()
+    drawn_at = None if drawn is None else np.r_[0, np.cumsum(np.asarray(drawn, bool).ravel())]
+    if drawn_at is not None and drawn_at.size != pv.size + 1:
+        raise ValueError(f"drawn must have the PV's {pv.size} samples, got {drawn_at.size - 1}")
     legs = 0
     # every excursion: reversal, turn, travel, the leg's travel, gains, a rest?
     turned = []
@@ -454,6 +463,8 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
         if b - a < 2 * MIN_FIT or (sp is not None and not np.all(
                 np.abs(sp[a + m:b] - sp[a:b - m]) <= 3.0 * pv_noise)):
             continue
+        if drawn_at is not None and drawn_at[b + 1] > drawn_at[a]:
+            continue          # the PV drawn across a gap in the leg: not on record
         legs += 1
         d = 1.0 if ops[b] > ops[a] else -1.0
         dev = -d * sense * (pvs[a:b] - pvs[a])

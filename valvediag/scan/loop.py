@@ -253,10 +253,11 @@ def _record_s(aligned: AlignedLoop) -> float:
 def _classify(aligned, a, b, process_type, config, compressed=False) -> LoopDiagnosis:
     sp = aligned.sp[a:b] if aligned.sp is not None else None
     mv = aligned.mv[a:b] if aligned.mv is not None else None
+    drawn = aligned.bridged[a:b] if aligned.bridged is not None else None
     return classify_loop(aligned.pv[a:b], aligned.op[a:b], sp, sample_time=aligned.sample_time,
                          process_type=process_type, method=config.method,
                          min_cycles=config.min_cycles, pv_compressed=compressed, mv=mv,
-                         record_s=_record_s(aligned))
+                         record_s=_record_s(aligned), drawn=drawn)
 
 
 def _is_episode(d: LoopDiagnosis, min_cycles: float) -> bool:
