@@ -555,3 +555,28 @@ def test_a_cascades_wandering_set_point_is_taken_out_of_the_oscillation(valve, v
                         sp_profile=steps, seed=1, **extra)
     d = classify_loop(sim.pv, sim.op, sim.sp, sample_time=1.0, process_type="self-regulating")
     assert "oscillation_read_in" not in d.evidence
+
+
+@pytest.mark.parametrize("cycles, verdict", [(0.5, "no-oscillation"), (1.2, "insufficient-data")])
+def test_a_period_seen_for_less_than_a_cycle_is_a_drift_not_a_cycle_cut_short(
+        monkeypatch, cycles, verdict):
+    # a level's day whose slow load reads as an autocorrelated "period" of
+    # 15.6 h (a plant benchmark loop, once its short bursts of bad states
+    # were bridged): half a cycle never repeated, and the record is quiet;
+    # a cycle and more, repeated once, is a cycle the record cut short
+    import dataclasses
+
+    import valvediag.analysis.classify as classify
+
+    real = classify.detect_oscillation
+
+    def slow(x, h, **kw):
+        return dataclasses.replace(real(x, h, **kw), period=56050.0, cycles=cycles,
+                                   acf_at_period=0.5)
+
+    monkeypatch.setattr(classify, "detect_oscillation", slow)
+    rng = np.random.default_rng(0)
+    pv = 50 + np.cumsum(rng.normal(0, 0.01, 8640)) + rng.normal(0, 0.05, 8640)
+    op = 40 + rng.normal(0, 0.1, 8640)
+    d = classify.classify_loop(pv, op, sample_time=10.0, process_type="integrating")
+    assert d.verdict == verdict, d.reason

@@ -987,3 +987,24 @@ def test_the_scan_tells_the_valve_readers_which_samples_it_drew(monkeypatch):
     assert r.evidence["segments"] == 1
     assert seen["drawn"] is not None
     assert np.array_equal(np.flatnonzero(seen["drawn"]), np.flatnonzero(gone))
+
+
+def test_a_quiet_record_with_a_minute_missing_every_hour_is_one_stretch():
+    # the noise of a quiet flow reads a period of a few seconds that no cycle
+    # keeps; a quarter of it bridged nothing, and a minute missing every
+    # hour cut the record into stretches. Only a regular period shortens the
+    # bridge below two minutes: a fast cycle's keeps its stretches apart
+    rng = np.random.default_rng(4)
+    t = np.arange(6 * 3600.0)
+    keep = (t % 3600) < 3540
+    spec = LoopSpec("F1", "F1.PV", "F1.OP", process_type="self-regulating", span=100.0)
+    cfg = ScanConfig(window_hours=24)
+    quiet = 50 + rng.normal(0, 0.2, t.size)
+    op = 40 + rng.normal(0, 0.1, t.size)
+    r = analyse_loop(job_for(spec, t.size, 1.0),
+                     {"pv": frame(t[keep], quiet[keep]), "op": frame(t[keep], op[keep])}, cfg)
+    assert r.evidence["segments"] == 1 and r.evidence["breaks_bridged"] == 5 * 60, r.evidence
+    cycling = 50 + 2 * np.sign(np.sin(2 * np.pi * t / 90)) + rng.normal(0, 0.2, t.size)
+    r = analyse_loop(job_for(spec, t.size, 1.0),
+                     {"pv": frame(t[keep], cycling[keep]), "op": frame(t[keep], op[keep])}, cfg)
+    assert r.evidence["segments"] == 6, r.evidence

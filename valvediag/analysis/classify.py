@@ -760,7 +760,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
               samples_per_period=spp, amplitude=osc.amplitude)
     common = dict(period=osc.period, amplitude=osc.amplitude, cycles=osc.cycles,
                   regularity=osc.regularity, oscillation=osc, pv=x, op=u)
-    looks_periodic = osc.acf_at_period > 0.3 and np.isfinite(osc.period)
+    # a period of which the record holds less than one cycle was never seen
+    # to repeat: a drift (a slow load over a day) is no cycle cut short
+    looks_periodic = (osc.acf_at_period > 0.3 and np.isfinite(osc.period)
+                      and osc.cycles >= 1.0)
     quiet = None
     if not np.isfinite(osc.period) or osc.cycles < 1.5:
         if looks_periodic:

@@ -820,14 +820,21 @@ def _pooled_clock(seg_diag, h: float) -> PhaseWander | None:
     return pooled_phase_wander([c for c, _ in clocks], [s for _, s in clocks])
 
 
+def _longest_oscillation(aligned: AlignedLoop) -> tuple[float, bool]:
+    """Period of the oscillation the record's longest stretch shows [s] (NaN
+    where it shows none), and whether it is regular."""
+    a, b = max(aligned.segments, key=lambda s: s[1] - s[0], default=(0, 0))
+    if b - a < MIN_SEGMENT_SAMPLES:
+        return math.nan, False
+    osc = detect_oscillation(aligned.pv[a:b], aligned.sample_time)
+    return osc.period, bool(osc.is_regular)
+
+
 def _longest_period(aligned: AlignedLoop, *, regular: bool = False) -> float:
     """Period of the oscillation the record's longest stretch shows [s]; NaN
     where it shows none (or, with ``regular``, no regular one)."""
-    a, b = max(aligned.segments, key=lambda s: s[1] - s[0], default=(0, 0))
-    if b - a < MIN_SEGMENT_SAMPLES:
-        return math.nan
-    osc = detect_oscillation(aligned.pv[a:b], aligned.sample_time)
-    return osc.period if osc.is_regular or not regular else math.nan
+    period, is_regular = _longest_oscillation(aligned)
+    return period if is_regular or not regular else math.nan
 
 
 def _bridged(aligned: AlignedLoop) -> tuple[AlignedLoop, int]:
@@ -837,18 +844,22 @@ def _bridged(aligned: AlignedLoop) -> tuple[AlignedLoop, int]:
     in a row), then the gaps between stretches: up to :data:`BRIDGE_GAP_S`,
     or, where the longest stretch oscillates, up to
     :data:`BRIDGE_PERIOD_SHARE` of its period (at most
-    :data:`BRIDGE_GAP_MAX_S`). A bridge longer than :data:`BRIDGE_GAP_S`
-    stands only where the record it joins shows a regular oscillation whose
-    period makes every gap bridged short enough: a stretch of 55 minutes
-    shows one or two cycles of a slow level, whose period it reads roughly,
-    and a wandering load's half swing reads as a period too."""
+    :data:`BRIDGE_GAP_MAX_S`). A period that makes the limit shorter counts
+    only where the stretch keeps it regularly: the noise of a quiet record
+    reads a period of a few samples that no cycle keeps, and a quarter of it
+    bridged nothing (a minute missing every hour cut such a day into 24
+    stretches). A bridge longer than :data:`BRIDGE_GAP_S` stands only
+    where the record it joins shows a regular oscillation whose period
+    makes every gap bridged short enough: a stretch of 55 minutes shows one
+    or two cycles of a slow level, whose period it reads roughly, and a
+    wandering load's half swing reads as a period too."""
     aligned, drawn = bridge_short_breaks(aligned)
     if len(aligned.segments) < 2:
         return aligned, drawn
     h = aligned.sample_time
     limit = BRIDGE_GAP_S
-    period = _longest_period(aligned)
-    if math.isfinite(period):
+    period, regular = _longest_oscillation(aligned)
+    if math.isfinite(period) and (regular or BRIDGE_PERIOD_SHARE * period > BRIDGE_GAP_S):
         limit = min(BRIDGE_GAP_MAX_S, BRIDGE_PERIOD_SHARE * period)
         if limit > BRIDGE_GAP_S:
             segs = aligned.segments
