@@ -42,8 +42,8 @@ from .align import AlignedLoop, contiguous_segments, to_epoch_us
 
 __all__ = ["DataQuality", "quality_metrics", "white_noise_std", "resolved_noise_std",
            "stored_resolution", "stored_points", "record_quantum", "despike",
-           "bridge_short_gaps", "bridge_short_breaks", "drawn_lines", "most_active_window",
-           "longest_run",
+           "bridge_short_gaps", "bridge_short_breaks", "drawn_lines", "drawn_counts",
+           "drawn_within", "most_active_window", "longest_run",
            "mask_frozen_pv", "FROZEN_REST_REPEAT", "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
 
 #: Mode texts meaning "the controller is not closing the loop".
@@ -925,6 +925,41 @@ def drawn_lines(bridged, max_len: int = BRIDGE_SAMPLES) -> np.ndarray:
     np.add.at(edges, starts[long], 1)
     np.add.at(edges, stops[long], -1)
     return np.cumsum(edges[:-1]) > 0
+
+
+def drawn_counts(drawn, n: int) -> np.ndarray | None:
+    """Drawn samples before each of ``n + 1`` sample boundaries (None for no mask).
+
+    Parameters
+    ----------
+    drawn : array_like of bool, shape (n,), or None
+        True where a sample was drawn across a gap rather than measured.
+    n : int
+        Samples in the record the mask belongs to.
+
+    Returns
+    -------
+    numpy.ndarray of int, shape (n + 1,), or None
+        For :func:`drawn_within`.
+
+    Raises
+    ------
+    ValueError
+        A mask of another length.
+    """
+    if drawn is None:
+        return None
+    drawn = np.asarray(drawn, dtype=bool).ravel()
+    if drawn.size != n:
+        raise ValueError(f"drawn must have the PV's {n} samples, got {drawn.size}")
+    return np.r_[0, np.cumsum(drawn)]
+
+
+def drawn_within(counts: np.ndarray, a, b) -> np.ndarray:
+    """Do the windows ``[a, b)`` (sample indices, clipped to the record) hold a
+    drawn sample? ``counts`` from :func:`drawn_counts`."""
+    n = counts.size - 1
+    return counts[np.clip(b, 0, n)] > counts[np.clip(a, 0, n)]
 
 
 def bridge_short_breaks(aligned: AlignedLoop, max_len: int = BRIDGE_SAMPLES

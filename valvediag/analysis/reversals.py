@@ -45,7 +45,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 from scipy.stats import median_abs_deviation
 
-from .quality import resolved_noise_std, white_noise_std
+from .quality import drawn_counts, drawn_within, resolved_noise_std, white_noise_std
 from .signature import loop_sense
 from .trend import pv_op_trend
 
@@ -450,9 +450,7 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
     turns, _, _ = turning_points(ops, 6.0 * op_noise / math.sqrt(m))
     turns = turns[(turns >= m) & (turns < pv.size - m)]
     sp = None if sp is None else np.asarray(sp, dtype=float).ravel()
-    drawn_at = None if drawn is None else np.r_[0, np.cumsum(np.asarray(drawn, bool).ravel())]
-    if drawn_at is not None and drawn_at.size != pv.size + 1:
-        raise ValueError(f"drawn must have the PV's {pv.size} samples, got {drawn_at.size - 1}")
+    drawn_at = drawn_counts(drawn, pv.size)
     legs = 0
     # every excursion: reversal, turn, travel, the leg's travel, gains, a rest?
     turned = []
@@ -463,7 +461,7 @@ def reversal_rests(pv, op, sample_time: float, *, sp=None, sense: float | None =
         if b - a < 2 * MIN_FIT or (sp is not None and not np.all(
                 np.abs(sp[a + m:b] - sp[a:b - m]) <= 3.0 * pv_noise)):
             continue
-        if drawn_at is not None and drawn_at[b + 1] > drawn_at[a]:
+        if drawn_at is not None and drawn_within(drawn_at, a, b + 1):
             continue          # the PV drawn across a gap in the leg: not on record
         legs += 1
         d = 1.0 if ops[b] > ops[a] else -1.0

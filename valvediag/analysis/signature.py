@@ -58,7 +58,8 @@ import numpy as np
 from scipy.signal import find_peaks, lfilter, oaconvolve
 
 from ..models.valves import apply_valve
-from .quality import most_active_window, resolved_noise_std, stored_points, white_noise_std
+from .quality import (drawn_counts, drawn_within, most_active_window, resolved_noise_std,
+                      stored_points, white_noise_std)
 from .trend import pv_op_trend
 
 __all__ = ["ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_events",
@@ -1104,10 +1105,7 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
     pv_noise = white_noise_std(pv)
     if not pv_noise > 0:
         return StickSlipEvents(found=False, reason="the PV has no measurable noise", **base)
-    # drawn samples so far: where a window holds one, counts[k + m] > counts[k]
-    drawn_at = None if drawn is None else np.r_[0, np.cumsum(np.asarray(drawn, bool).ravel())]
-    if drawn_at is not None and drawn_at.size != pv.size + 1:
-        raise ValueError(f"drawn must have the PV's {pv.size} samples, got {drawn_at.size - 1}")
+    drawn_at = drawn_counts(drawn, pv.size)
     if process == "integrating":
         # a level's kinks, read over ever wider windows: a slip steps the
         # slope by little against the noise of a narrow one
@@ -1249,14 +1247,6 @@ def pooled_stick_slip_events(readings, *, record_s: float) -> StickSlipEvents:
                            travel=travel, size=size, sample_time=readings[0].sample_time)
 
 
-def _drawn_within(drawn_at, a, b) -> np.ndarray:
-    """Does ``[a, b)`` (arrays of sample indices, clipped to the record) hold
-    a drawn sample? ``drawn_at`` is the cumulative count of drawn samples."""
-    n = drawn_at.size - 1
-    a, b = np.clip(a, 0, n), np.clip(b, 0, n)
-    return drawn_at[b] > drawn_at[a]
-
-
 def _slips(y, op, err, sp, L, thr, band, err_min, drawn_at=None):
     """Jumps of a self-regulating PV ``y`` over ``L`` samples beyond ``thr``, or None.
 
@@ -1269,7 +1259,7 @@ def _slips(y, op, err, sp, L, thr, band, err_min, drawn_at=None):
     if drawn_at is not None:
         # a PV drawn across a gap made no jump the record saw
         k = np.arange(d.size)
-        d = np.where(_drawn_within(drawn_at, k, k + L + 1), np.nan, d)
+        d = np.where(drawn_within(drawn_at, k, k + L + 1), np.nan, d)
     # a jump stands out of the record's ordinary moves over L samples too
     # (a slow load moves a PV by more than its noise over a long step)
     dd = d[np.isfinite(d)]
@@ -1513,7 +1503,7 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol, drawn_at=None):
     if drawn_at is not None and idx.size:
         # a line drawn across a gap kinks at its ends, and a window that
         # holds one reads a kink of it anywhere: only measured windows are read
-        idx = idx[~_drawn_within(drawn_at, idx - w, idx + w)]
+        idx = idx[~drawn_within(drawn_at, idx - w, idx + w)]
     if idx.size == 0:
         return None
     pb = _window_corr(y, bend)
