@@ -946,12 +946,7 @@ def test_a_levels_turns_against_a_compressed_ops_reversals_placed_by_the_pi_law(
     from valvediag.synth.cases import CLASSES, draw_loop
 
     loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
-    t = np.arange(loop.pv.size) * loop.sample_time
-    spec = LoopSpec("L1", "L1.PV", "L1.OP", sp_tag="L1.SP", process_type="integrating",
-                    span=100.0)
-    r = analyse_loop(job_for(spec, loop.pv.size, loop.sample_time),
-                     {"pv": frame(t, loop.pv), "op": frame(t, loop.op), "sp": frame(t, loop.sp)},
-                     ScanConfig(window_hours=24))
+    r = _scan_rows_kept(loop, np.ones(loop.pv.size, bool), "integrating")
     timing = r.evidence["turn_timing"]
     assert timing["reversals_by_law"] >= 3, timing
     assert r.verdict == verdict, r.reason

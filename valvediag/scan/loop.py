@@ -830,13 +830,6 @@ def _longest_oscillation(aligned: AlignedLoop) -> tuple[float, bool]:
     return osc.period, bool(osc.is_regular)
 
 
-def _longest_period(aligned: AlignedLoop, *, regular: bool = False) -> float:
-    """Period of the oscillation the record's longest stretch shows [s]; NaN
-    where it shows none (or, with ``regular``, no regular one)."""
-    period, is_regular = _longest_oscillation(aligned)
-    return period if is_regular or not regular else math.nan
-
-
 def _bridged(aligned: AlignedLoop) -> tuple[AlignedLoop, int]:
     """The record with its short breaks bridged, and the samples drawn.
 
@@ -866,8 +859,8 @@ def _bridged(aligned: AlignedLoop) -> tuple[AlignedLoop, int]:
             widest = max((a - b for (_, b), (a, _) in zip(segs, segs[1:])
                           if a - b <= limit // h), default=0)
             wide, more = bridge_short_breaks(aligned, max(BRIDGE_SAMPLES, int(limit // h)))
-            joined = _longest_period(wide, regular=True) if more else math.nan
-            if math.isfinite(joined) and widest * h <= BRIDGE_PERIOD_SHARE * joined:
+            joined, steady = _longest_oscillation(wide) if more else (math.nan, False)
+            if steady and math.isfinite(joined) and widest * h <= BRIDGE_PERIOD_SHARE * joined:
                 return wide, drawn + more
             limit = BRIDGE_GAP_S
     aligned, more = bridge_short_breaks(aligned, max(BRIDGE_SAMPLES, int(limit // h)))
