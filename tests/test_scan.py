@@ -268,6 +268,44 @@ def test_quiet_loop_is_no_oscillation_and_a_snapshot_says_what_it_covers():
     assert r.confidence < full.confidence
 
 
+def test_a_quiet_record_too_short_to_show_three_ten_minute_cycles_rules_out_nothing():
+    """A quiet record says ``no-oscillation`` only where it could have shown
+    ``min_cycles`` (3) cycles of the shortest stretch analysed (10 minutes
+    at 1 s): 20 minutes of a quiet level, or 13 minutes holding one and a
+    half cycles of a sticky valve's 8.7-minute cycle, read as a healthy
+    valve's before. At 0.1 s the shortest stretch is 600 samples, and three
+    of them (3 minutes) rule out the cycles of a loop sampled that fast."""
+    rng = np.random.default_rng(4)
+    t = np.arange(7200.0)
+    pv = 50 + np.cumsum(rng.normal(0, 0.002, t.size)) + rng.normal(0, 0.01, t.size)
+    op = 50 + rng.normal(0, 0.2, t.size)
+    job = LoopJob(SPEC, T0, T0 + dt.timedelta(hours=24))
+    for n, verdict in ((1200, "insufficient-data"), (1790, "insufficient-data"),
+                       (1800, "no-oscillation")):
+        r = analyse_loop(job, {"pv": frame(t[:n], pv[:n]), "op": frame(t[:n], op[:n])})
+        assert r.verdict == verdict, (n, r.reason)
+    assert r.reason.startswith("no oscillation in the 30 min of data available")
+    r = analyse_loop(job, {"pv": frame(t[:1200], pv[:1200]), "op": frame(t[:1200], op[:1200])})
+    assert r.reason.startswith("too little data to rule out an oscillation (a quiet record "
+                               "must hold 3 cycles as long as the shortest stretch analysed, "
+                               "10 min: 30 min)"), r.reason
+    assert r.reason.endswith("(from the 20 min of data available of the 24 h window)")
+    # the same samples at 0.1 s: 1,800 samples (3 min) rule out a fast loop's cycles
+    r = analyse_loop(job, {"pv": frame(t[:1800] * 0.1, pv[:1800]),
+                           "op": frame(t[:1800] * 0.1, op[:1800])})
+    assert r.verdict == "no-oscillation", r.reason
+    # 1.5 cycles of a sticky level's 521 s cycle: where they show three
+    # slips, those name the valve; where they do not, nothing is ruled out
+    sim = simulate_loop(kc=1.0, ti=80.0, tau=80.0, sample_time=1.0, duration=9000,
+                        sp_step=1.0, valve="kano", valve_params={"S": 3.0, "J": 1.5},
+                        noise_std=0.01, valve_noise_band=0.06, seed=2)
+    for start, verdict in ((4000, "stiction"), (5000, "insufficient-data")):
+        short = slice(start, start + 782)
+        t = np.arange(782.0)
+        r = analyse_loop(job, {"pv": frame(t, sim.pv[short]), "op": frame(t, sim.op[short])})
+        assert r.verdict == verdict, (start, r.reason)
+
+
 def test_a_valve_verdict_on_a_snapshot_says_what_it_stands_on():
     # two hours of a sticky valve's limit cycle exported inside a 24 h window
     sim = simulate_loop(kc=1.0, ti=60.0, tau=60.0, sample_time=1.0, duration=9000,

@@ -727,7 +727,14 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     The classifier analyses one gap-free segment at a time, so a day
     split by longer gaps is analysed in pieces, those of at least
     :data:`MIN_SEGMENT_S` (or :data:`ENOUGH_SAMPLES` samples, where they
-    last less); an oscillation that occupies
+    last less). A record whose stretches show no oscillation, no event and no
+    dead response reads ``no-oscillation`` only where its usable stretches
+    last ``min_cycles`` times the shortest stretch analysed (30 minutes at
+    one sample a second or slower): a cycle of 10 minutes, a slow level's,
+    needs that long to show ``min_cycles`` times, and a shorter record is
+    ``insufficient-data`` (20 minutes of a level, or 13 minutes holding 1.5
+    cycles of a sticky valve's cycle of 8.7 minutes, would otherwise read as a
+    healthy valve's). An oscillation that occupies
     less than about a third of a segment may be missed by the segment's
     classification (the block screen only splits segments found
     oscillating). An unexpected error in the analysis gives the loop
@@ -965,11 +972,6 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
         dead = [e for e in seg_diag if e[2].evidence.get("dead_response")]
         ra, rb, rep = max(dead or seg_diag, key=lambda e: e[1] - e[0])
         verdict, confidence, reason = rep.verdict, rep.confidence, rep.reason
-        if verdict == "no-oscillation" and ev["coverage"] < config.min_coverage:
-            # a snapshot: say what the verdict covers rather than refuse it
-            reason = (f"no oscillation in the {_duration(usable_s)} of data available (of the "
-                      f"{window_s / 3600:.3g} h window): {reason}")
-            confidence *= 0.5 + 0.5 * ev["coverage"] / config.min_coverage
         if len(segs) > 1:
             ev["segment_verdicts"] = sorted({d.verdict for _, _, d in seg_diag})
             pooled = (_pooled_events(seg_diag, _record_s(aligned), spec.process_type)
@@ -983,6 +985,18 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                 episodes = [(a, b, dataclasses.replace(d, verdict=verdict,
                                                        confidence=confidence))
                             for a, b, d in used]
+        rule_out_s = config.min_cycles * min_len * h
+        if verdict == "no-oscillation" and usable_s < rule_out_s:
+            # too short to see the cycles it would rule out
+            verdict, confidence = "insufficient-data", 0.9
+            reason = (f"too little data to rule out an oscillation (a quiet record must hold "
+                      f"{config.min_cycles:g} cycles as long as the shortest stretch analysed, "
+                      f"{_duration(min_len * h)}: {_duration(rule_out_s)}); {reason}")
+        elif verdict == "no-oscillation" and ev["coverage"] < config.min_coverage:
+            # a snapshot: say what the verdict covers rather than refuse it
+            reason = (f"no oscillation in the {_duration(usable_s)} of data available (of the "
+                      f"{window_s / 3600:.3g} h window): {reason}")
+            confidence *= 0.5 + 0.5 * ev["coverage"] / config.min_coverage
     if verdict != "no-oscillation" and ev["coverage"] < config.min_coverage:
         # any other verdict on a snapshot says what it stands on too
         reason += (f" (from the {_duration(usable_s)} of data available of the "
