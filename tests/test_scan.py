@@ -290,6 +290,8 @@ def test_a_quiet_record_too_short_to_show_three_ten_minute_cycles_rules_out_noth
                                "must hold 3 cycles as long as the shortest stretch analysed, "
                                "10 min: 30 min)"), r.reason
     assert r.reason.endswith("(from the 20 min of data available of the 24 h window)")
+    # the period and amplitude of its noise are not reported, as on a quiet record
+    assert np.isnan(r.period_s) and np.isnan(r.amplitude) and r.severity == 0.0
     # the same samples at 0.1 s: 1,800 samples (3 min) rule out a fast loop's cycles
     r = analyse_loop(job, {"pv": frame(t[:1800] * 0.1, pv[:1800]),
                            "op": frame(t[:1800] * 0.1, op[:1800])})

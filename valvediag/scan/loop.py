@@ -932,6 +932,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     ev.update(span=span, span_source=span_source)
     diagnostic = [e for e in episodes if e[2].verdict != "insufficient-data"]
     voters = diagnostic or episodes
+    too_short = False
     if voters:
         weights: dict[str, float] = {}
         for a, b, d in voters:
@@ -986,7 +987,8 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                                                        confidence=confidence))
                             for a, b, d in used]
         rule_out_s = config.min_cycles * min_len * h
-        if verdict == "no-oscillation" and usable_s < rule_out_s:
+        too_short = verdict == "no-oscillation" and usable_s < rule_out_s
+        if too_short:
             # too short to see the cycles it would rule out
             verdict, confidence = "insufficient-data", 0.9
             reason = (f"too little data to rule out an oscillation (a quiet record must hold "
@@ -1003,7 +1005,9 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                    f"{window_s / 3600:.3g} h window)")
 
     osc_s = sum((b - a) for a, b, _ in episodes) * h
-    amp = rep.amplitude if verdict != "no-oscillation" else math.nan
+    # a quiet record's period and amplitude are its noise's
+    quiet = verdict == "no-oscillation" or too_short
+    amp = rep.amplitude if not quiet else math.nan
     amp_pct = 100.0 * amp / span if math.isfinite(amp) and span and math.isfinite(span) else math.nan
     if verdict in EPISODE_VERDICTS:
         factor, note = _quality_note(q, rep.period)
@@ -1060,7 +1064,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
                       confidence=round(float(np.clip(confidence, 0.0, 1.0)), 3), severity=sev,
                       process_type=ptype,
                       bi=rep.bi if verdict in EPISODE_VERDICTS else math.nan,
-                      period_s=rep.period if verdict != "no-oscillation" else math.nan,
+                      period_s=rep.period if not quiet else math.nan,
                       amplitude=amp, amplitude_pct_span=amp_pct,
                       regularity=rep.regularity, reason=reason, evidence=to_plain(ev),
                       quality=qd, episodes=eps, size=size,
