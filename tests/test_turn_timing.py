@@ -70,7 +70,7 @@ def test_an_op_stored_far_apart_is_placed_by_the_controllers_law(monkeypatch):
     the reversal). Such a reversal is placed where the PI law, fitted to the
     stored moves, reverses; where the law is not trusted it is not read."""
     import valvediag.analysis.turn_timing as tt
-    import valvediag.workbench.size as size
+    import valvediag.workbench.data as wdata
 
     pv, op, sp = level_cycle("backlash", 0.0)
     period = detect_oscillation(pv, H).period
@@ -82,7 +82,7 @@ def test_an_op_stored_far_apart_is_placed_by_the_controllers_law(monkeypatch):
     fine = turn_timing(pv, _stored(op, 0.002 * swing), H, period)
     assert fine.kind == "" and fine.turns >= 20 and fine.share < SLIP_SHARE / 4
     # a law that explains too little of the stored moves places nothing
-    monkeypatch.setattr(size, "REBUILD_R2", 1.01)
+    monkeypatch.setattr(wdata, "REBUILD_R2", 1.01)
     for share in (0.1, 0.2):
         assert turn_timing(pv, _stored(op, share * swing), H, period, sp=sp).turns == 0
     # and without the guard the coarsely stored OP reads a slip
@@ -96,7 +96,7 @@ def test_a_sticky_level_with_its_op_stored_far_apart_still_turns_after_it(monkey
     law places them: the level turns after them, as with the OP in full
     (the realistic benchmark's sticky levels with a compressed OP read
     ``backlash`` by the index, without a turn read)."""
-    import valvediag.workbench.size as size
+    import valvediag.workbench.data as wdata
 
     pv, op, sp = level_cycle("kano", 12.0)
     period = detect_oscillation(pv, H).period
@@ -109,7 +109,7 @@ def test_a_sticky_level_with_its_op_stored_far_apart_still_turns_after_it(monkey
     assert full.by_law == 0 and placed.by_law >= placed.turns // 2
     assert placed.as_dict()["reversals_by_law"] == placed.by_law
     assert "placed by the PI law" in placed.reason
-    monkeypatch.setattr(size, "REBUILD_R2", 1.01)
+    monkeypatch.setattr(wdata, "REBUILD_R2", 1.01)
     assert turn_timing(pv, _stored(op, 0.2 * swing), H, period, sp=sp).turns == 0
 
 

@@ -156,9 +156,8 @@ def _placed_reversals(x, u, h, m, w, delta, sp, idx, sign):
     to the reversal of the same sign that the OP rebuilt from the
     controller's law makes within the stored points' span (``w`` samples
     either side), where the law explains the stored moves."""
-    from ..workbench.data import rebuild_compressed_op
+    from ..workbench.data import REBUILD_R2, rebuild_compressed_op
     from ..workbench.kernels import turning_points
-    from ..workbench.size import REBUILD_R2
 
     kept = stored_points(u)
     j = np.searchsorted(kept, idx, side="right")
@@ -231,7 +230,7 @@ def turn_timing(pv, op, sample_time: float, period: float, *, sp=None) -> TurnTi
     OP rebuilt between its stored points from the PI law fitted to the
     stored moves (:func:`~valvediag.workbench.data.rebuild_compressed_op`),
     where that law explains at least the workbench's
-    :data:`~valvediag.workbench.size.REBUILD_R2` of them, taking the
+    :data:`~valvediag.workbench.data.REBUILD_R2` of them, taking the
     rebuilt OP's reversal of the same sign within the stored points' span.
     The law sees the recorded level, which the valve does not enter, so the
     reversal it places is the controller's (the loose level valves of the

@@ -20,7 +20,7 @@ from .kernels import nudge_holds, turning_points
 from .sensor import PVGrid, pv_grid
 
 __all__ = ["LoopData", "WorkbenchDataError", "prepare_loop", "white_noise_std", "periodogram_band",
-           "rebuild_compressed_op", "stored_points", "growing_swing"]
+           "rebuild_compressed_op", "REBUILD_R2", "stored_points", "growing_swing"]
 
 #: Fewest segments a record must give (training plus held-out).
 MIN_SEGMENTS = 6
@@ -326,6 +326,12 @@ def shade_heldout(ax, data: LoopData):
     edges = np.flatnonzero(np.diff(np.r_[0, held.astype(np.int8), 0]))
     for a, b in zip(edges[::2], edges[1::2]):
         ax.axvspan(data.t[a], data.t[b - 1], color="0.9", lw=0, zorder=0)
+
+
+#: A compressed OP is rebuilt from the controller's law when that law explains at
+#: least this share of the variance of its stored moves [-]
+#: (:func:`rebuild_compressed_op`'s second result).
+REBUILD_R2 = 0.8
 
 
 def rebuild_compressed_op(pv, op, sample_time: float, sp=None) -> tuple[np.ndarray, float]:

@@ -8,7 +8,8 @@ import math
 import numpy as np
 
 from ..analysis.quality import white_noise_std
-from .data import WorkbenchDataError, prepare_loop, rebuild_compressed_op, stored_points
+from .data import (REBUILD_R2, WorkbenchDataError, prepare_loop, rebuild_compressed_op,
+                   stored_points)
 from .model import LoopModel
 
 __all__ = ["estimate_valve_size", "size_window", "prepare_valve_record", "SIZE_EFFECTS",
@@ -45,9 +46,6 @@ SIZE_SAMPLES_PER_PERIOD = 120.0
 NO_JUMP = 0.2
 #: Above this share of interpolated (or held) samples the OP is compressed [-].
 COMPRESSED_SHARE = 0.3
-#: A compressed OP is rebuilt from the controller's law when that law explains at
-#: least this share of the variance of its stored moves [-].
-REBUILD_R2 = 0.8
 
 _FAULTS = {"stiction": "stiction", "backlash": "deadband", "deadband": "deadband"}
 
@@ -173,8 +171,9 @@ def estimate_valve_size(pv, op, sample_time, fault, process_type="integrating", 
     only where it lowers the held-out error (:func:`_parsimonious_fit`).
     A compressed OP (more than :data:`COMPRESSED_SHARE` of its samples on
     straight lines) is rebuilt between its stored points from the
-    controller's law where that law explains at least :data:`REBUILD_R2` of
-    its stored moves (:func:`~valvediag.workbench.data.rebuild_compressed_op`),
+    controller's law where that law explains at least
+    :data:`~valvediag.workbench.data.REBUILD_R2` of its stored moves
+    (:func:`~valvediag.workbench.data.rebuild_compressed_op`),
     with the noise band read from the stored points.
 
     A PV stored compressed (more than :data:`COMPRESSED_SHARE` of its
@@ -295,11 +294,11 @@ def prepare_valve_record(pv, op, sample_time, valve: str, *, sp=None):
     -----
     An OP compressed on more than :data:`COMPRESSED_SHARE` of its samples is
     rebuilt between its stored points from the controller's law where that
-    law explains at least :data:`REBUILD_R2` of its stored moves (a straight
-    line between them cuts each reversal), with the noise band read from the
-    stored points. A PV so compressed is scored on its stored samples only
-    for a dead band (its lines cut a smooth turn short; see
-    :func:`estimate_valve_size`), on every sample for a sticky valve (its
+    law explains at least :data:`~valvediag.workbench.data.REBUILD_R2` of its
+    stored moves (a straight line between them cuts each reversal), with the
+    noise band read from the stored points. A PV so compressed is scored on
+    its stored samples only for a dead band (its lines cut a smooth turn
+    short; see :func:`estimate_valve_size`), on every sample for a sticky valve (its
     kinks are stored).
     """
     interpolated = _interpolated_share(op)
