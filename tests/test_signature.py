@@ -511,6 +511,60 @@ def test_a_tight_level_loops_quick_turn_after_a_load_step_is_not_a_slip():
     assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
 
 
+def _pumped_level(kind="square", period=3600.0, tau=60.0, kc=0.8, seed=25, noise=0.05):
+    """A day of a healthy level at 5 s (controller at 2.5 s) under a load
+    that steps or ramps between +-2 % every half ``period`` [s]: a pump that
+    starts and stops, or an inflow that ramps up and down (PI, Ti 1.5 tau,
+    a lag of 0.05 tau and a dead time of 0.02 tau)."""
+    from valvediag.synth.cases import _wave
+
+    hc, warm = 2.5, int(4 * 3600 / 2.5)
+    n = warm + int(86400 / hc)
+    load = 2.0 * _wave(kind, np.arange(n) * hc, period, 1.3)
+    sim = simulate_loop(process="integrating", valve="linear", sample_time=hc, n_samples=n,
+                        kc=kc, ti=1.5 * tau, tau=tau, lag=0.05 * tau, dead_time=0.02 * tau,
+                        sp=50.0, load=50.0, load_profile=load, noise_std=noise, seed=seed)
+    return sim.pv[warm::2], sim.op[warm::2], sim.sp[warm::2], 2 * hc
+
+
+def test_a_levels_answer_to_a_quick_move_of_its_op_after_a_pumps_step_is_not_a_slip():
+    """A healthy level whose inflow steps by 4 % every half hour (a pump that
+    starts and stops) settles within minutes of each step. Read over a
+    half-window of 128 samples, the level kinks two minutes after each step,
+    where the valve, following the OP's quick answer, turns it: the OP stood
+    still for three quarters of the window and moved only in its last one.
+    Any valve that moves kinks a level after such a burst of its OP, so the
+    kink says nothing (before, 48 of 48 such turns read as slips, and the
+    scan said ``stiction``)."""
+    from valvediag.analysis.signature import KINK_BURST_STILL
+
+    pv, op, sp, h = _pumped_level()
+    e = stick_slip_events(pv, op, h, process="integrating", sp=sp)
+    assert not e.found and e.consistent < MIN_SLIPS, e.reason
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+    # the burst: over the 128 samples before a turn, the OP stood still for
+    # three quarters and made its move in the last one
+    k = 24 + int(np.flatnonzero(np.abs(np.diff(op)) > 0.3)[0])
+    q = op[k - 128:k].reshape(4, 32).mean(axis=1)
+    assert np.ptp(q[:3]) < KINK_BURST_STILL * abs(q[3] - q[2]) and abs(q[3] - q[2]) > 1.0
+
+
+@pytest.mark.parametrize("kind, tau, kc", [("square", 120.0, 1.0), ("triangle", 120.0, 1.0),
+                                           ("square", 300.0, 2.5)])
+def test_a_level_that_holds_still_between_its_turns_swings_with_its_load(kind, tau, kc):
+    """A healthy level under a load of 90-minute period, 16 cycles a day
+    (too few to read the phase's wander): after a pump's step it settles at
+    its set point; under a ramping inflow it holds still off it while the OP
+    follows the ramp. Either way it does not ramp from turn to turn as a
+    level does whose valve rests, stuck or in its dead band; its sharp or
+    lagged turns read ``stiction`` before."""
+    pv, op, sp, h = _pumped_level(kind, period=5400.0, tau=tau, kc=kc, seed=2, noise=0.01)
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
+    assert d.verdict == "linear-oscillation", d.reason
+    assert d.evidence["ramp_share"] < 0.3 and "does not ramp between its turns" in d.reason
+
+
 def test_loop_sense_reads_which_way_the_op_moves_the_pv():
     from valvediag.analysis.signature import loop_sense
 

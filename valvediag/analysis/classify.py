@@ -31,6 +31,17 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    (:data:`RESONANCE_SLIPS`: a sticky valve slipping every few minutes
    behind slow integral action makes an irregular cycle of its slips, where
    a ringing loop's thousands of turns pass for a slip a few times a day).
+   On a process the registry calls integrating, a level that does not ramp
+   from turn to turn says so too (its ramps between turns cover less than
+   :data:`RAMP_SHARE_MIN` of its swing: it holds still for much of each
+   cycle, where its valve passes the load's flow, as after a pump's step or
+   while the OP follows a ramping inflow). A valve at rest, stuck or inside
+   its dead band, passes a flow that is not the load's, so its limit cycle
+   ramps the level between its turns (the sticky, sawtooth and loose level
+   cycles of the realistic benchmark's study and development seeds ramp over
+   0.93 of their swing or more). Healthy levels under slow loads of 60-120
+   minutes' period, with too few cycles for their clock to be read, turned
+   sharply or lagged and read ``stiction`` before.
 4. ``stiction``, ``backlash`` or ``undecided``. On an integrating process the
    Backlash Index decides, as the paper does, and the valve signature
    (:func:`valvediag.analysis.signature.valve_signature`) settles a BI
@@ -1030,6 +1041,24 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         return d if d.verdict in ("stiction", "backlash", "undecided") else \
             (valve_events("self-regulating") or rests_at_reversals() or d)
     valve_faulty = travel is not None and travel.fault
+    share = sev["ramp_share"]
+    if process_type == "integrating" and not valve_faulty and share < RAMP_SHARE_MIN:
+        # a valve at rest, stuck or inside its dead band, passes a flow that
+        # is not the load's, and the level runs in a ramp from turn to turn.
+        # One that holds still for much of each half-cycle (at its set point
+        # after a pump's step, or off it while the OP follows a ramping load)
+        # has a valve passing the load's flow there: the swing is the load's.
+        # (The level's kinks are not read: where it held still while the OP
+        # followed a ramping load, each turn reads as a slip after a stuck
+        # valve's straight run.)
+        return verdict(
+            "linear-oscillation", c_data * 0.8,
+            f"the level does not ramp between its turns (its ramp covers {share:.2f} of its "
+            "swing): it holds still for much of each cycle, where its valve passes the "
+            "load's flow, and swings as the load changes; a sticky or loose valve's limit "
+            "cycle ramps a level from turn to turn; trace the disturbance (a pump that "
+            "starts and stops, a batch step); method: the level's ramps between its turns",
+            process_screen=pscreen, shape=shape, **common)
     if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR and not valve_faulty:
         conf = c_data * proc_conf * (0.5 + 0.5 * (1.0 - shape.pv_distortion / DIST_LINEAR))
         return verdict("linear-oscillation", conf,

@@ -951,6 +951,12 @@ KINK_ABRUPT = 0.7
 #: fraction of the OP's noise, too small to break a valve loose, and a load's
 #: step after it would read as a slip as often as not).
 KINK_TRAVEL_Z = 4.0
+#: Before a kink, the OP's means over the first three quarters of the
+#: half-window spread by at most this share of its move over the last
+#: quarter, and the OP moved in a burst, not a creep: any valve that moves
+#: kinks a level after a quick move of its OP (a settled loop's answer to a
+#: load's step), so such a kink says nothing of the valve.
+KINK_BURST_STILL = 0.25
 #: Steps over which a self-regulating PV's jumps are measured [samples].
 SLIP_STEPS = (2, 8, 32, 128)
 
@@ -1045,7 +1051,14 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
     step, over that half-window) and the step is abrupt (at half the window
     it shows at :data:`KINK_ABRUPT` of its size within a quarter window).
     A valve that follows the OP bends the level as the OP moves, and its
-    kinks, where a step of the OP makes one, are judged and not slips. Over
+    kinks, where a step of the OP makes one, are judged and not slips. A
+    stuck valve breaks loose as the OP creeps on: where the OP stood still
+    over the first three quarters of the half-window (their means spread by
+    at most :data:`KINK_BURST_STILL` of its move over the last quarter) and
+    moved only in the last, any valve that moves kinks the level after it
+    (a settled loop's quick answer to a load's step), and the kink is not
+    judged (a healthy level under a pump that starts and stops every half
+    hour read 48 of 48 such turns as slips before). Over
     the stretch since the last kink (or the half-window), a valve that
     followed the OP would have bent the level by about the whole step and one
     that held not at all; where a parabola fitted to that stretch does not
@@ -1561,6 +1574,16 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol, drawn_at=None):
         # a kink the OP did not drive (it stood still) is a load's: it says nothing
         judged[i] = abs(travel[i]) > travel_min
         if not judged[i]:
+            continue
+        # the OP still crept as the valve broke loose (over the last quarter
+        # window, against the quarter before it): a loop that had settled
+        # holds its OP still before a load's step
+        # a stuck valve breaks loose as the OP creeps on; where the OP stood
+        # still until the last quarter window and then moved fast, the valve
+        # may have followed it
+        quarters = op[k - 4 * q:k].reshape(4, q).mean(axis=1)
+        if np.ptp(quarters[:3]) <= KINK_BURST_STILL * abs(quarters[3] - quarters[2]):
+            judged[i] = False
             continue
         # the valve moved the way the OP crept, in one step, after it had held
         way = sense != 0 and np.sign(d) == sense * np.sign(travel[i])
