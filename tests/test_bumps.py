@@ -170,7 +170,7 @@ def test_a_slip_steps_the_slope_by_more_than_a_following_valve(seed):
     assert ratios["kano"] > 10 * SLIP_OVER_FOLLOWING
 
 
-@pytest.mark.parametrize("seed,index", [(1, 4), (14, 6)])
+@pytest.mark.parametrize("seed,index", [(1, 4), (16, 5), (14, 6)])
 def test_a_healthy_level_whose_kinks_its_op_made_is_not_called_sticky(seed, index):
     """Healthy levels of the realistic benchmark's generator (PI control, set-point
     steps, a wandering load with pump steps) whose kinks the reader takes for
@@ -189,24 +189,6 @@ def test_a_healthy_level_whose_kinks_its_op_made_is_not_called_sticky(seed, inde
     assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
     assert d.evidence["kinks_followed"]["ratio"] < 3.0
     assert d.evidence["setpoint_bumps"]["answered"] >= 3
-
-
-def test_a_healthy_levels_kinks_after_bursts_of_its_op_are_not_read():
-    """A third healthy level whose kinks the reader took for slips (and the
-    OP's travel through the valve's gain cleared): its OP stood still and
-    then moved fast before them, the loop's answer to a pump's step, and
-    they are no longer judged at all."""
-    from valvediag.analysis.signature import stick_slip_events
-    from valvediag.synth.cases import CLASSES, draw_loop
-
-    rng = np.random.default_rng([16, list(CLASSES).index("level-healthy"), 5])
-    loop = draw_loop("level-healthy", rng)
-    kinks = stick_slip_events(loop.pv, loop.op, loop.sample_time, process="integrating",
-                              sp=loop.sp)
-    assert not kinks.found and kinks.consistent < 3, kinks.reason
-    d = classify_loop(loop.pv, loop.op, loop.sp, sample_time=loop.sample_time,
-                      process_type="integrating")
-    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
 
 
 def test_a_fault_found_by_setpoint_steps_is_not_sized():

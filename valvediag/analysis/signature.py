@@ -956,7 +956,7 @@ KINK_TRAVEL_Z = 4.0
 #: quarter, and the OP moved in a burst, not a creep: any valve that moves
 #: kinks a level after a quick move of its OP (a settled loop's answer to a
 #: load's step), so such a kink says nothing of the valve.
-KINK_BURST_STILL = 0.25
+KINK_BURST_STILL = 0.1
 #: Steps over which a self-regulating PV's jumps are measured [samples].
 SLIP_STEPS = (2, 8, 32, 128)
 
