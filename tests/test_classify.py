@@ -108,6 +108,59 @@ def test_self_regulating_linear_valve_under_a_square_load_is_not_a_valve_fault()
     assert d.evidence["signature"]["verdict"] == "linear"
 
 
+def test_rest_share_reads_a_settling_loops_rests_and_no_rest_in_a_limit_cycle():
+    """Hand-built cycles of 200 samples: an error that jumps off the set point
+    and decays back, then rests at it with the OP still for 60 % of each
+    half-cycle (a loop settling after each step of a square load); and a
+    triangular error with a square OP's integral, a triangle, that never
+    rests."""
+    from valvediag.analysis.linearity import rest_share
+
+    n, P = 4000, 200
+    t = np.arange(n)
+    half = (t // (P // 2)) % 2 * 2 - 1                     # +-1 each half-cycle
+    tau = (t % (P // 2)).astype(float)
+    e = -half * np.where(tau < 40, np.exp(-tau / 8.0), 0.0)
+    op = 50.0 + 5.0 * half * np.minimum(tau / 40.0, 1.0)   # moves, then holds
+    osc = detect_oscillation(e, 1.0)
+    r = rest_share(e, op, osc.apex_idx, osc.apex_sign)
+    assert 0.4 <= r <= 0.65
+    tri = 2 / np.pi * np.arcsin(np.sin(2 * np.pi * t / P))
+    op_tri = 50.0 + 5.0 * 2 / np.pi * np.arcsin(np.sin(2 * np.pi * (t - P / 4) / P))
+    osc = detect_oscillation(tri, 1.0)
+    assert rest_share(tri, op_tri, osc.apex_idx, osc.apex_sign) == 0.0
+
+
+@pytest.mark.parametrize("tau, kc, process_type", [(300.0, 2.5, "integrating"),
+                                                   (120.0, 1.0, "unknown"),
+                                                   (30.0, 0.3, "self-regulating")])
+def test_a_loop_that_rests_at_its_set_point_each_cycle_swings_with_its_load(tau, kc,
+                                                                          process_type):
+    """A day at 5 s of a healthy loop under a clipped sine load (a flat top for
+    about half of each half-cycle) of 90 minutes' period on a level, 60 on a
+    flow: it settles at its set point while the load stands, 12-40 % of each
+    cycle, which a valve's limit cycle never does. The level of known type
+    read ``stiction`` by its sharp turns before, the one of unknown type
+    (screened self-regulating by its plateaus) by its valve signature; the
+    flow read ``linear-oscillation`` by its signature before too."""
+    from valvediag.synth.cases import _wave
+
+    integ = process_type != "self-regulating"
+    hc, warm = 2.5, int(4 * 3600 / 2.5)
+    n = warm + int(86400 / hc)
+    period = 5400.0 if integ else 3600.0
+    load = (2.0 if integ else 3.0) * _wave("clipped", np.arange(n) * hc, period, 1.3)
+    sim = simulate_loop(process="integrating" if integ else "self-regulating",
+                        valve="linear", sample_time=hc, n_samples=n, kc=kc,
+                        ti=(1.5 if integ else 1.0) * tau, tau=tau, lag=0.05 * tau,
+                        dead_time=0.02 * tau, sp=50.0, load=50.0 if integ else 0.0,
+                        load_profile=load, noise_std=0.01, seed=2)
+    pv, op, sp = sim.pv[warm::2], sim.op[warm::2], sim.sp[warm::2]
+    d = classify_loop(pv, op, sp, sample_time=5.0, process_type=process_type)
+    assert d.verdict == "linear-oscillation", d.reason
+    assert d.evidence["rest_share"] >= 0.1 and "rests at its set point" in d.reason
+
+
 def test_unknown_integrating_loop_is_screened_as_integrating():
     pv, op, h = _loop("kano", {"S": 3.0, "J": 3.0})
     d = classify_loop(pv, op, sample_time=h, process_type="unknown")

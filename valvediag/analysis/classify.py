@@ -41,7 +41,12 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    cycles of the realistic benchmark's study and development seeds ramp over
    0.93 of their swing or more). Healthy levels under slow loads of 60-120
    minutes' period, with too few cycles for their clock to be read, turned
-   sharply or lagged and read ``stiction`` before.
+   sharply or lagged and read ``stiction`` before. On any process, a loop
+   that rests at its set point with its OP still for
+   :data:`REST_SHARE_MIN` of its mean cycle or more says so as well
+   (:func:`~valvediag.analysis.linearity.rest_share`: a valve's limit cycle
+   never rests at the set point, a loop that settles after each move of its
+   load does).
 4. ``stiction``, ``backlash`` or ``undecided``. On an integrating process the
    Backlash Index decides, as the paper does, and the valve signature
    (:func:`valvediag.analysis.signature.valve_signature`) settles a BI
@@ -74,7 +79,7 @@ import numpy as np
 from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
 from .bumps import (SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps,
                     setpoint_process_screen)
-from .linearity import CycleShape, cycle_shape, mean_cycles
+from .linearity import CycleShape, cycle_shape, mean_cycles, rest_share
 from .oscillation import (Oscillation, PhaseWander, detect_oscillation, phase_wander,
                           turned_cycles)
 from .quality import (bridge_short_gaps, despike, drawn_lines, longest_run, record_quantum,
@@ -108,6 +113,9 @@ DIST_LINEAR = 0.03
 #: share above these mean an integrating process.
 RAMP_CURVATURE_MAX = 0.011
 RAMP_SHARE_MIN = 0.6
+#: A loop that rests at its set point with its OP still for at least this
+#: share of its mean cycle swings with its load (:func:`rest_share`).
+REST_SHARE_MIN = 0.1
 #: A valve "follows the OP" when a linear valve explains at least this share of
 #: the held-out variance of the valve position the PV implies ...
 FOLLOWS_R2 = 0.9
@@ -1012,6 +1020,20 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             "batch step) drives it, not the valve, whose own limit cycle would wander with "
             "the noise; trace the disturbance; method: the phase's wander over the cycles",
             process_screen=pscreen, shape=shape, **common)
+    if s_ab is not None and bool(np.all(np.isfinite(s_ab))) and not (
+            travel is not None and travel.fault):
+        rests = rest_share(x - s_ab, u, osc.apex_idx, osc.apex_sign)
+        ev["rest_share"] = rests
+        if rests >= REST_SHARE_MIN:
+            # a valve's limit cycle never rests at the set point: with the
+            # error at zero a stuck valve would hold, and the cycle end
+            return verdict(
+                "linear-oscillation", c_data * proc_conf * 0.8,
+                f"the loop rests at its set point with its OP still for {100 * rests:.0f}% of "
+                "each cycle: it settles after each move of its load, which drives the swing "
+                "(a pump that starts and stops, a batch step); a sticky or loose valve's limit "
+                "cycle never rests at the set point; trace the disturbance; method: the "
+                "loop's rests at its set point", process_screen=pscreen, shape=shape, **common)
     amp_cv = osc.amplitude_variation
     ev["amplitude_variation"] = amp_cv
     if np.isfinite(amp_cv) and amp_cv >= RESONANCE_VARIATION:

@@ -43,10 +43,19 @@ import numpy as np
 
 from .oscillation import resample_cycles, turned_cycles
 
-__all__ = ["CycleShape", "mean_cycles", "cycle_shape"]
+__all__ = ["CycleShape", "mean_cycles", "cycle_shape", "rest_share", "REST_NEAR",
+           "REST_STILL", "REST_NBINS"]
 
 NBINS = 64
 N_HARMONICS = 7
+#: A phase point of the mean cycle is at the set point where the mean control
+#: error lies within this share of its half swing of zero ...
+REST_NEAR = 0.1
+#: ... and the OP is still where its move to the next point is at most this
+#: share of its mean move between points.
+REST_STILL = 0.1
+#: Phase points of the mean cycle read by :func:`rest_share`.
+REST_NBINS = 128
 
 
 def mean_cycles(signals, apex_idx, apex_sign, nbins: int = NBINS):
@@ -195,3 +204,60 @@ def cycle_shape(pv, op, apex_idx, apex_sign, nbins: int = NBINS) -> CycleShape:
         k = int(np.argmax(r))
         r2, lag = float(max(r[k], 0.0) ** 2), float(lags[k])
     return CycleShape(dist, r2, lag, K, mean - mean.mean(), opm - opm.mean())
+
+
+def rest_share(error, op, apex_idx, apex_sign, nbins: int = REST_NBINS) -> float:
+    """Share of the mean cycle over which the loop rests at its set point with its OP still.
+
+    Parameters
+    ----------
+    error : array_like, shape (n,)
+        Control error, PV less set point [PV unit], sampled like the PV whose
+        apices are given.
+    op : array_like, shape (n,)
+        Controller output [OP unit].
+    apex_idx, apex_sign : array_like
+        Apices of the PV (:func:`valvediag.analysis.oscillation.detect_oscillation`).
+    nbins : int
+        Phase points per cycle.
+
+    Returns
+    -------
+    float
+        Share of the mean cycle's phase points [0-1] where the mean error is
+        within :data:`REST_NEAR` of its half swing of zero and the mean OP
+        moves by at most :data:`REST_STILL` of its mean move; NaN where fewer
+        than two cycles are cut.
+
+    Notes
+    -----
+    A valve's limit cycle never rests at the set point. With the error at
+    zero the controller stops; a valve that sticks, or rests in its dead
+    band, then holds a position that passes the load's flow only by chance,
+    and were it to, the loop would stay at rest and the cycle end. A loop
+    whose every cycle rests at its set point with the OP still is settling
+    after each move of its load (a pump that starts and stops, a batch
+    step): the swing is the load's, whatever the valve. On the realistic
+    benchmark's study seeds 10-16 (4 loops a class) the sticky and loose
+    valves' cycles, level and flow, rest for at most 0.016 of the cycle, the
+    ringing levels for at most 0.016; the square loads on fast flows for up
+    to 0.68.
+
+    It fails where the loop never settles between the load's moves (a slow
+    loop, a fast load) and where the load ramps: the loop then holds a
+    steady error off its set point while the OP follows the ramp, as a
+    sticky flow valve's loop does while the OP creeps. A noisy mean cycle
+    (few cycles) reads fewer rests, not more. A set point that wanders
+    without a step is read through (the error is the PV less it).
+    """
+    E, U = resample_cycles([error, op], apex_idx, apex_sign, nbins)
+    if E.shape[0] < 2:
+        return float("nan")
+    e, u = E.mean(axis=0), U.mean(axis=0)
+    half = 0.5 * float(np.ptp(e))
+    du = np.abs(np.diff(np.r_[u, u[:1]]))
+    if not (half > 0 and du.mean() > 0):
+        return float("nan")
+    at_sp = np.abs(e) <= REST_NEAR * half
+    still = du <= REST_STILL * du.mean()
+    return float(np.mean(at_sp & still))
