@@ -39,7 +39,7 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    its dead band, passes a flow that is not the load's, so its limit cycle
    ramps the level between its turns (the sticky, sawtooth and loose level
    cycles of the realistic benchmark's study and development seeds ramp over
-   0.93 of their swing or more). Healthy levels under slow loads of 60-120
+   0.93 of their swing or more). Healthy levels under slow loads of 30-120
    minutes' period, with too few cycles for their clock to be read, turned
    sharply or lagged and read ``stiction`` before. On any process, a loop
    that rests at its set point with its OP still for

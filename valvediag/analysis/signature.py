@@ -951,11 +951,11 @@ KINK_ABRUPT = 0.7
 #: fraction of the OP's noise, too small to break a valve loose, and a load's
 #: step after it would read as a slip as often as not).
 KINK_TRAVEL_Z = 4.0
-#: Before a kink, the OP's means over the first three quarters of the
+#: Where the OP's means over the first three quarters of a kink's
 #: half-window spread by at most this share of its move over the last
-#: quarter, and the OP moved in a burst, not a creep: any valve that moves
-#: kinks a level after a quick move of its OP (a settled loop's answer to a
-#: load's step), so such a kink says nothing of the valve.
+#: quarter, the OP moved in a burst, not a creep: any valve that moves kinks
+#: a level after a quick move of its OP (a settled loop's answer to a load's
+#: step), so such a kink says nothing of the valve.
 KINK_BURST_STILL = 0.1
 #: Steps over which a self-regulating PV's jumps are measured [samples].
 SLIP_STEPS = (2, 8, 32, 128)
@@ -1575,9 +1575,6 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol, drawn_at=None):
         judged[i] = abs(travel[i]) > travel_min
         if not judged[i]:
             continue
-        # the OP still crept as the valve broke loose (over the last quarter
-        # window, against the quarter before it): a loop that had settled
-        # holds its OP still before a load's step
         # a stuck valve breaks loose as the OP creeps on; where the OP stood
         # still until the last quarter window and then moved fast, the valve
         # may have followed it
