@@ -2,7 +2,8 @@
 
 The loops come from ``valvediag.synth.cases`` (see its docstring): sticky and
 loose valves with and without limit cycles, on level (integrating) and flow
-(self-regulating) loops; healthy valves under non-sinusoidal disturbances, in
+(self-regulating) loops; healthy valves under non-sinusoidal disturbances, fast
+and slow (a pump that starts and stops every half hour to two hours), in
 ringing loops and in quiet ones; dead responses; 1-10 s sampling, 1-4 h
 snapshots and full days, noise 0.5-3 % of the PV's range, 30 % compressed.
 Every loop runs through the scan's own per-loop analysis
@@ -28,7 +29,10 @@ each draw's cycles with it, so some draws of the quiet classes (sticky and
 healthy levels, healthy flows) changed in every set. Since then the
 generator counts cycles with its own crossings of the control error
 (``valvediag.synth.plant.cycle_stats``), independent of the method under
-test; that change redrew loops in every set once more.
+test; that change redrew loops in every set once more. On 2026-11-29 the
+class ``level-linear-slow-load`` was added (healthy levels under square,
+clipped, triangular or pumped loads of 30-120 minutes' period), last in
+``CLASSES``: every other class's loops are drawn as before.
 
 Usage: python benchmarks/bench_realistic.py [--loops N] [--set dev|dev2|heldout|all] [--workers W]
        [--classes C1,C2] [--misses] [--evidence FILE] [--valve-position]

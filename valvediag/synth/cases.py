@@ -21,6 +21,10 @@ records show more, and the scan must be right on all of it
 * loose flow valves: a dead band after each reversal, no jump;
 * healthy valves under non-sinusoidal disturbances (square, triangular,
   clipped) at 10-60 samples per period, on level and flow loops;
+* healthy valves on level loops under slow periodic loads (square, clipped,
+  triangular, or a pump that runs for part of each period; 30-120 minutes):
+  the level settles at its set point after each move of the load, or
+  stands off it while the OP follows a ramping inflow;
 * healthy valves in loops tuned too tightly (ringing), and quiet healthy
   loops with set-point moves, a wandering load and load steps (pumps that
   start and stop), half the flows behind slow integral action;
@@ -69,6 +73,8 @@ CLASSES: dict[str, tuple[str, str, bool]] = {
     "level-healthy": ("no-oscillation", "integrating", False),
     "flow-healthy": ("no-oscillation", "self-regulating", False),
     "dead-response": ("insufficient-data", "self-regulating", False),
+    # appended last, so that every other class's draws stay as they were
+    "level-linear-slow-load": ("linear-oscillation", "integrating", True),
 }
 #: Classes whose valve is faulty.
 FAULT_CLASSES = tuple(k for k, v in CLASSES.items() if v[0] in ("stiction", "backlash"))
@@ -374,6 +380,22 @@ def _try(klass: str, rng: np.random.Generator, cascade: bool = False):
             # a level loop rejects a fast load poorly: the load is a flow [%/s scale]
             sim.update(kc=float(rng.uniform(1.0, 3.0)), ti=float(rng.uniform(1.5, 3.0)) * tau)
         profile_load = amp * _wave(kind, t, period, float(rng.uniform(0, 2 * np.pi)))
+        p.update(disturbance=kind, disturbance_period_s=period, disturbance_amplitude=amp)
+    elif klass == "level-linear-slow-load":
+        # a load that moves every half hour to two hours: a pump that runs for
+        # part of each period, or a square, clipped or triangular inflow; the
+        # level settles between the load's moves (the valve's flow balances it)
+        period = float(rng.uniform(1800.0, 7200.0))
+        kind = str(rng.choice(("square", "triangle", "clipped", "pump")))
+        amp = float(rng.uniform(1.0, 4.0))
+        phase = float(rng.uniform(0, 2 * np.pi))
+        if kind == "pump":
+            duty = float(rng.uniform(0.2, 0.5))
+            on = ((t / period + phase / (2 * np.pi)) % 1.0) < duty
+            profile_load = amp * (on - duty)
+            p.update(pump_duty=duty)
+        else:
+            profile_load = amp * _wave(kind, t, period, phase)
         p.update(disturbance=kind, disturbance_period_s=period, disturbance_amplitude=amp)
     elif klass == "level-linear-tuning":
         theta = float(rng.uniform(0.1, 0.4)) * tau
