@@ -26,13 +26,21 @@ def p_only_level(seed, valve, valve_params=None, sense=1.0, h=5.0, n=17_280, tau
     return r.pv, r.op, r.sp, h
 
 
-def level_bending(seed, against, h=10.0, n=8640, rate=2e-4):
+def level_bending(seed, against, h=10.0, n=8640, rate=2e-4, alternate=True):
     """Hand-built: a level whose slope turns smoothly at each set-point step, the
     kick's way or against it (``against``: which steps, by their order), and a
-    proportional controller's OP computed from it."""
+    proportional controller's OP computed from it. Steps that alternate in
+    sign every 25-50 minutes make a level that bends against each one
+    zig-zag at a period of about 75 minutes, as regular as a cycle
+    (Thornhill's regularity 5-46); ``alternate=False`` gives each step a
+    random sign, and the level wanders."""
     rng = np.random.default_rng(seed)
     sp = 50.0 + alternating_steps(rng, n, every_s=(1500.0, 3000.0), size=(2.5, 3.5),
                                   sample_time=h)
+    if not alternate:
+        moves = np.diff(sp, prepend=sp[0])
+        sign = np.random.default_rng(seed + 100).choice((-1.0, 1.0), n)
+        sp = 50.0 + np.cumsum(np.abs(moves) * sign)
     t = np.arange(n) * h
     slope = np.zeros(n)
     for i, k in enumerate(np.flatnonzero(np.diff(sp)) + 1):
@@ -124,7 +132,8 @@ def test_one_step_against_the_kick_is_not_a_fault():
 
 
 def test_classify_reads_the_steps_only_on_a_level():
-    pv, op, sp, h = level_bending(1, against=lambda i: True)
+    # steps of random sign: the level does not zig-zag as a cycle would
+    pv, op, sp, h = level_bending(1, against=lambda i: True, alternate=False)
     d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
     # no slip of the level's slope (its turns are smooth): sticky or loose
     assert d.verdict == "undecided"
@@ -134,7 +143,7 @@ def test_classify_reads_the_steps_only_on_a_level():
     d = classify_loop(pv, op, sp, sample_time=h, process_type="self-regulating")
     assert "setpoint_bumps" not in d.evidence
     # the level that bends the kick's way is no valve fault
-    pv, op, sp, h = level_bending(1, against=lambda i: False)
+    pv, op, sp, h = level_bending(1, against=lambda i: False, alternate=False)
     d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
     assert d.verdict == "no-oscillation"
     assert not d.evidence["setpoint_bumps"]["found"]
@@ -194,7 +203,7 @@ def test_a_healthy_level_whose_kinks_its_op_made_is_not_called_sticky(seed, inde
 def test_a_fault_found_by_setpoint_steps_is_not_sized():
     from valvediag.scan.loop import signature_size
 
-    pv, op, sp, h = level_bending(1, against=lambda i: True)
+    pv, op, sp, h = level_bending(1, against=lambda i: True, alternate=False)
     d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
     size = signature_size(d.evidence, "stiction")
     assert np.isnan(size["S"]) and size["confidence"] == 0.0

@@ -6,6 +6,7 @@ import pytest
 
 from valvediag import VERDICTS, classify_loop, simulate_loop
 from valvediag.analysis.bi import THRESHOLDS
+from valvediag.analysis.classify import RAMP_ARC_MIN, RAMP_CURVATURE_MAX
 from valvediag.analysis.oscillation import acf_period, detect_oscillation, phase_wander
 from valvediag.paper.scenarios import draw_cases, record
 
@@ -219,6 +220,27 @@ def test_acf_period_of_a_drifting_record_is_never_negative():
     assert period == pytest.approx(97.3, abs=0.2) and peak > 0.9
 
 
+def test_the_regularity_of_a_waveform_that_rests_between_its_swings():
+    # a pulse up, a rest, a pulse down, a rest (a loop that settles between
+    # a load's steps), with noise: its ACF lingers about zero between its
+    # lobes and the noise crosses zero there; read at every crossing, every
+    # other crossing is not half a period on (Thornhill's regularity 0.2-0.45
+    # here). Read across a band about zero, the lingering counts once
+    from valvediag.analysis.oscillation import acf_regularity
+
+    P, n = 400, 16000
+    ph = (np.arange(n) % P) / P
+    x = (ph < 0.15).astype(float) - ((ph >= 0.5) & (ph < 0.65)).astype(float)
+    for seed in range(3):
+        y = x + np.random.default_rng(seed).normal(0, 0.05, n)
+        period, peak = acf_period(y)
+        assert period == pytest.approx(P, abs=0.5) and peak > 0.9
+        assert acf_regularity(y, band=0.0) < 1.0 < acf_regularity(y)
+    # a sine's ACF leaves the band right after each zero crossing: read alike
+    s = np.sin(2 * np.pi * np.arange(n) / P) + np.random.default_rng(0).normal(0, 0.05, n)
+    assert acf_regularity(s, band=0.0) == acf_regularity(s) > 1.0
+
+
 def test_a_cycle_in_part_of_a_noisy_record_is_segmented_at_its_period():
     # 2 h of a 150 s cycle, then 20 h of noise at the cycle's middle: a band set
     # by the whole record's range sits inside the noise of its quiet part,
@@ -415,8 +437,14 @@ def test_a_compressed_level_under_a_triangular_load_is_not_called_sticky(seed, c
     assert d.verdict == "linear-oscillation", d.reason
     assert d.evidence["phase_wander"]["keeps_clock"] == clock
     if not clock:
-        assert d.bi < THRESHOLDS["robust"][1]              # the corners do not read round
-        assert d.evidence["ramp_curvature"] > 0.011         # but the ramps are curved
+        curv = d.evidence["ramp_curvature"]
+        assert curv > RAMP_CURVATURE_MAX                    # the ramps are curved
+        if curv >= RAMP_ARC_MIN:
+            # arcs that a valve at rest cannot make: read before the index
+            assert "runs in arcs" in d.reason and np.isnan(d.bi)
+        else:
+            assert d.bi < THRESHOLDS["robust"][1]          # the corners do not read round
+            assert "follows the OP" in d.reason
 
 
 def _study_record(klass, seed, index):

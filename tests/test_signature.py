@@ -568,6 +568,67 @@ def test_a_level_that_holds_still_between_its_turns_swings_with_its_load(kind, t
     assert d.evidence["ramp_share"] < 0.3 and why in d.reason
 
 
+@pytest.mark.parametrize("kind, tau, kc, period", [
+    ("clipped", 400.0, 2.6, 5700.0),
+    ("square", 500.0, 1.4, 4800.0)])
+def test_a_slow_level_that_runs_in_arcs_between_sharp_turns_swings_with_its_load(
+        kind, tau, kc, period):
+    """A healthy slow level (time constant 400-500 s) under a square or
+    clipped load of 80-95 minutes' period: it does not settle between the
+    load's steps, and where the load steps it turns sharply, so the
+    Backlash Index reads 0.7-0.8, a slip's (``stiction`` before). Between
+    its turns it runs in arcs: the flow through its valve changes all along
+    each ramp. A valve at rest, stuck or in its dead band, passes a steady
+    flow and ramps a level straight (curvature 0.012 at most on the
+    realistic benchmark's sticky and loose level cycles)."""
+    from valvediag.analysis.classify import RAMP_ARC_MIN
+
+    pv, op, sp, h = _pumped_level(kind, period=period, tau=tau, kc=kc, seed=3, noise=0.02)
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
+    assert d.verdict == "linear-oscillation", d.reason
+    assert d.evidence["ramp_curvature"] >= RAMP_ARC_MIN and "runs in arcs" in d.reason
+    # the turns alone would name a sticky valve
+    from valvediag.analysis.bi import backlash_index
+
+    assert backlash_index(pv - sp, h).verdict == "stiction"
+
+
+def test_a_level_that_rests_between_a_pumps_steps_is_read_as_cycling():
+    """A healthy level under a pump that starts and stops every half hour,
+    with noise of 5 % of its swing, settles at its set point after each step
+    and rests there for most of the cycle. The ACF of such a record lingers
+    about zero, and its noise crosses zero there a few times: every other
+    crossing was then not half a period on, the regularity read 0.9 and the
+    scan said ``no-oscillation``. The cycle is the load's, and its rests say
+    so."""
+    from valvediag.analysis.oscillation import detect_oscillation
+
+    pv, op, sp, h = _pumped_level("square", period=3600.0, tau=60.0, kc=0.8, seed=3,
+                                  noise=0.05)
+    o = detect_oscillation(pv, h)
+    assert o.period == pytest.approx(3600.0, rel=0.02) and o.is_regular
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
+    assert d.verdict == "linear-oscillation" and "rests at its set point" in d.reason, d.reason
+
+
+@pytest.mark.parametrize("noise", [0.1, 0.2])
+def test_a_fast_level_that_rests_between_a_pumps_steps_is_segmented_at_the_pumps_period(noise):
+    """A fast level (time constant 60 s, tight tuning) under a pump of
+    90-minute period settles within minutes of each step and rests at its
+    set point for most of the day, where its noise crosses the hysteresis
+    band set by its swing: the cycles read 30-35 s long (a regularity of
+    0.5-0.7) and the scan saw no oscillation. Across the band widened to
+    four noise deviations, the crossings keep the ACF's period, all through
+    the record."""
+    from valvediag.analysis.oscillation import detect_oscillation
+
+    pv, op, sp, h = _pumped_level("square", period=5400.0, tau=60.0, kc=2.0, seed=3,
+                                  noise=noise)
+    o = detect_oscillation(pv, h)
+    assert o.period == pytest.approx(5400.0, rel=0.02) and o.is_regular
+    assert 14 <= o.cycles <= 17
+
+
 def test_loop_sense_reads_which_way_the_op_moves_the_pv():
     from valvediag.analysis.signature import loop_sense
 

@@ -41,7 +41,12 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    cycles of the realistic benchmark's study and development seeds ramp over
    0.93 of their swing or more). Healthy levels under slow loads of 30-120
    minutes' period, with too few cycles for their clock to be read, turned
-   sharply or lagged and read ``stiction`` before. On any process, a loop
+   sharply or lagged and read ``stiction`` before. A level that runs in
+   arcs between its turns (their curvature :data:`RAMP_ARC_MIN` of its
+   swing or more, where those cycles curve by 0.012 at most) has a flow that
+   changes all along each ramp, not a valve at rest: a slow level under a
+   square or clipped load, whose turns are sharp where the load steps. On
+   any process, a loop
    that rests at its set point with its OP still for
    :data:`REST_SHARE_MIN` of its mean cycle or more says so as well
    (:func:`~valvediag.analysis.linearity.rest_share`: a valve's limit cycle
@@ -113,6 +118,10 @@ DIST_LINEAR = 0.03
 #: share above these mean an integrating process.
 RAMP_CURVATURE_MAX = 0.011
 RAMP_SHARE_MIN = 0.6
+#: A level whose ramps between turns curve by at least this much (the
+#: :func:`integrating_screen`'s curvature; a sine's reads about 0.012) has a
+#: valve that is not at rest between its turns: it swings with its load.
+RAMP_ARC_MIN = 0.02
 #: A loop that rests at its set point with its OP still for at least this
 #: share of its mean cycle swings with its load (:func:`rest_share`).
 REST_SHARE_MIN = 0.1
@@ -1080,6 +1089,23 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             "load's flow, and swings as the load changes; a sticky or loose valve's limit "
             "cycle ramps a level from turn to turn; trace the disturbance (a pump that "
             "starts and stops, a batch step); method: the level's ramps between its turns",
+            process_screen=pscreen, shape=shape, **common)
+    curv = sev["ramp_curvature"]
+    if process_type == "integrating" and not valve_faulty and curv >= RAMP_ARC_MIN:
+        # a valve at rest, stuck or inside its dead band, passes a steady flow,
+        # and the level runs straight between turns (the sticky, sawtooth and
+        # loose level cycles of the realistic benchmark's study and development
+        # seeds curve by 0.012 at most). A level that runs in arcs has a flow
+        # that changes all along the ramp: a linear valve answering its load.
+        # Its turns may still be sharp where the load steps (a square or
+        # clipped load on a slow level), and they read as slips
+        return verdict(
+            "linear-oscillation", c_data * 0.8,
+            f"the level runs in arcs between its turns (curvature {curv:.3f} of its swing, "
+            f"where a valve at rest ramps it straight, below {RAMP_CURVATURE_MAX:g}): the "
+            "flow through its valve changes all along each ramp, as a linear valve's does "
+            "when it answers a changing load, and the turns are the load's; trace the "
+            "disturbance; method: the straightness of the level's ramps",
             process_screen=pscreen, shape=shape, **common)
     if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR and not valve_faulty:
         conf = c_data * proc_conf * (0.5 + 0.5 * (1.0 - shape.pv_distortion / DIST_LINEAR))
