@@ -1004,9 +1004,10 @@ def detect_oscillation(pv, sample_time: float, *, remove_drift: bool = True) -> 
     period is the ACF's to within a tenth and they swing by ten noise
     deviations or more: a loop that rests at its set point between the
     steps of a slow load crosses the band with its noise while it rests,
-    all through the record, and the wider band finds the load's period (the
-    realistic benchmark's healthy levels under pumped and square loads
-    swing by 9-34 deviations). An oscillation smaller than that is not
+    all through the record, and the wider band finds the load's period (on
+    ten healthy levels under pumped and square loads of the realistic
+    benchmark's study seeds that needed it, the swing read 14-34 deviations,
+    and 9 on one). An oscillation smaller than that is not
     segmented there, and a swing within a few noise deviations all through
     the record (the plant benchmark's healthy loops under loads of 3-6 h
     swing by 4-10) is left as it was read.
@@ -1020,9 +1021,11 @@ def detect_oscillation(pv, sample_time: float, *, remove_drift: bool = True) -> 
             and 3 * hint <= x.size):
         # the record is periodic at the ACF's lag (three cycles of it fit), yet
         # its band crossings come far faster: noise may cross a band set by a
-        # cycle that fills only part of the record. Cross beyond the noise, and
-        # keep that reading where the cycles it finds do fill only a part (a
-        # swing as small as the noise all through the record stays unsegmented)
+        # cycle that fills only part of the record, or the rests of a loop that
+        # settles between a slow load's steps. Cross beyond the noise, and keep
+        # that reading where the cycles it finds fill only a part, or keep the
+        # ACF's period with a swing well clear of the noise (a swing of a few
+        # noise deviations all through the record stays unsegmented)
         noise = white_noise_std(x)
         seg = segment_cycles(x, hint, remove_drift, BAND_NOISE * noise)
         ai2 = seg[1]
