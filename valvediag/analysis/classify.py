@@ -1137,7 +1137,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     # load's turns, stored by swinging door, meet at sharp corners too) they
     # give way where a linear valve explains the implied valve position as
     # :func:`follows_op` asks, not where a linear signature merely fits poorly
-    curved = np.isfinite(sev["ramp_curvature"]) and sev["ramp_curvature"] >= RAMP_CURVATURE_MAX
+    curved = np.isfinite(curv) and curv >= RAMP_CURVATURE_MAX
     sharp = bres.verdict == "stiction"
     sig = ValveSignature(process="integrating", verdict="unknown",
                          reason="not read: the Backlash Index finds sharp turns on straight ramps")
