@@ -6,8 +6,9 @@ import pytest
 
 from valvediag import VERDICTS, classify_loop, simulate_loop
 from valvediag.analysis.bi import THRESHOLDS
-from valvediag.analysis.classify import RAMP_ARC_MIN, RAMP_CURVATURE_MAX
+from valvediag.analysis.classify import AWAY_SHARE_MIN, RAMP_ARC_MIN, RAMP_CURVATURE_MAX
 from valvediag.analysis.oscillation import acf_period, detect_oscillation, phase_wander
+from valvediag.analysis.signature import valve_signature
 from valvediag.paper.scenarios import draw_cases, record
 
 
@@ -98,7 +99,8 @@ def test_self_regulating_linear_valve_under_a_square_load_is_not_a_valve_fault()
     pw = phase_wander(pv, detect_oscillation(pv, h), op)
     assert pw.crossings >= 40 and "does not answer" in pw.reason
     # the same load from another loop's own cycle, whose period wanders (190-390 s
-    # here): no clock; the valve signature finds the valve linear
+    # here): no clock; its steps push the PV off its set point, and the valve
+    # signature, read alone, finds the valve linear too
     f = 1.0 / 240.0 * np.exp(np.cumsum(np.random.default_rng(2).normal(0, 0.004, t.size)))
     load = np.sign(np.sin(2 * np.pi * np.cumsum(f) * 2.0))
     pv, op, h = _loop("linear", {}, process="self-regulating", kc=0.8, ti=20.0, tau=15.0,
@@ -106,7 +108,9 @@ def test_self_regulating_linear_valve_under_a_square_load_is_not_a_valve_fault()
     d = classify_loop(pv, op, sample_time=h, process_type="self-regulating")
     assert d.verdict == "linear-oscillation", d.reason
     assert not d.evidence["phase_wander"]["keeps_clock"]
-    assert d.evidence["signature"]["verdict"] == "linear"
+    assert d.evidence["away_share"] >= AWAY_SHARE_MIN and "leads away" in d.reason
+    assert valve_signature(pv, op, h, process="self-regulating",
+                           period=d.period).verdict == "linear"
 
 
 def test_rest_share_reads_a_settling_loops_rests_and_no_rest_in_a_limit_cycle():
@@ -130,6 +134,71 @@ def test_rest_share_reads_a_settling_loops_rests_and_no_rest_in_a_limit_cycle():
     op_tri = 50.0 + 5.0 * 2 / np.pi * np.arcsin(np.sin(2 * np.pi * (t - P / 4) / P))
     osc = detect_oscillation(tri, 1.0)
     assert rest_share(tri, op_tri, osc.apex_idx, osc.apex_sign) == 0.0
+
+
+def test_away_share_reads_a_slip_towards_the_set_point_and_a_load_step_away_from_it():
+    """Hand-built errors of 200 samples a cycle. A sticky valve's slip: each
+    half-cycle the error runs from one side of the set point across it as a
+    process answers a step, fastest at first. A load's step: the error jumps
+    off the set point at once and the controller brings it back over the
+    half-cycle. A sine moves away and back alike."""
+    from valvediag.analysis.linearity import away_share
+
+    n, P = 4000, 200
+    t = np.arange(n)
+    half = (t // (P // 2)) % 2 * 2 - 1
+    tau = (t % (P // 2)).astype(float)
+    slip = half * (1.0 - 2.0 * np.exp(-tau / 12.0))          # -1 -> +1 fastest at first
+    assert away_share(slip, 1.0, P) < 0.3
+    step = half * np.exp(-tau / 30.0)                         # jumps off, decays back
+    assert away_share(step, 1.0, P) > 0.8
+    sine = np.sin(2 * np.pi * t / P)
+    assert away_share(sine, 1.0, P) == pytest.approx(0.5, abs=0.02)
+    # a set-point step moves the error off by itself (the PV follows it over a
+    # time constant): the moves across the step are left out
+    t0 = n // 2 + 37
+    sp = np.where(t >= t0, 5.0, 0.0)
+    lagging = slip - np.where(t >= t0, 5.0 * np.exp(-(t - t0) / 20.0), 0.0)
+    assert away_share(lagging, 1.0, P) > away_share(slip, 1.0, P) + 0.05
+    assert away_share(lagging, 1.0, P, sp=sp) <= away_share(slip, 1.0, P)
+    assert np.isnan(away_share(slip, 1.0, 1.0))              # no period to read
+
+
+@pytest.mark.parametrize("kind", ["square", "clipped", "sine"])
+def test_a_slow_loop_pushed_off_its_set_point_by_its_load_is_no_valve_fault(kind):
+    """Six hours at 2 s of a healthy self-regulating loop of 200 s time
+    constant and 30 s dead time (a temperature's) under a load of 30
+    minutes' period: 11 cycles, too few for the phase's wander to be read. A
+    linear valve without the load explains the cycle poorly, and a sticky
+    valve's band lags the OP into it: the valve signature read ``stiction``
+    for each load before. Under the square and clipped loads the loop's
+    fast motion leads away from its set point; the sine's has no harmonics.
+    The same loop with a sticky valve cycles with its fast motion towards
+    its set point and reads ``stiction``."""
+    from valvediag.synth.cases import _wave
+
+    hc, warm = 1.0, 4 * 3600
+    n = warm + 6 * 3600
+    common = dict(process="self-regulating", sample_time=hc, n_samples=n, kc=0.5, ti=200.0,
+                  tau=200.0, lag=10.0, dead_time=30.0, sp=50.0, noise_std=0.02, seed=4)
+    load = 3.0 * _wave(kind, np.arange(n) * hc, 1800.0, 0.4)
+    sim = simulate_loop(valve="linear", load_profile=load, **common)
+    d = classify_loop(sim.pv[warm::2], sim.op[warm::2], sim.sp[warm::2], sample_time=2.0,
+                      process_type="self-regulating")
+    assert d.cycles < 40 and not d.evidence["phase_wander"]["keeps_clock"]
+    assert d.verdict == "linear-oscillation", d.reason
+    if kind == "sine":
+        # the load's steps push nothing off: a sine moves the PV away and back
+        # alike, and makes no harmonics, which a valve's nonlinearity would
+        assert "sinusoidal" in d.reason and d.evidence["pv_distortion"] < 0.03
+    else:
+        assert d.evidence["away_share"] >= AWAY_SHARE_MIN and "leads away" in d.reason
+    sim = simulate_loop(valve="kano", valve_params={"S": 2.0, "J": 2.0}, sp_step=1.0,
+                        sp_step_time=60.0, valve_noise_band=0.1, **common)
+    d = classify_loop(sim.pv[warm::2], sim.op[warm::2], sim.sp[warm::2], sample_time=2.0,
+                      process_type="self-regulating")
+    assert d.evidence["away_share"] < 0.4
+    assert d.verdict == "stiction", d.reason
 
 
 @pytest.mark.parametrize("tau, kc, process_type", [(300.0, 2.5, "integrating"),

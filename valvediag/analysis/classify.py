@@ -52,7 +52,12 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    :data:`REST_SHARE_MIN` of its mean cycle or more says so as well
    (:func:`~valvediag.analysis.linearity.rest_share`: a valve's limit cycle
    never rests at the set point, a loop that settles after each move of its
-   load does).
+   load does). On a self-regulating process, a sinusoidal PV says so, and so
+   does a loop whose fast motion leads away from its set point for
+   :data:`AWAY_SHARE_MIN` of it or more
+   (:func:`~valvediag.analysis.linearity.away_share`: a sticky valve's slip
+   is the controller's correction arriving at once and moves the PV towards
+   its set point fastest; a load's step pushes it away).
 4. ``stiction``, ``backlash`` or ``undecided``. On an integrating process the
    Backlash Index decides, as the paper does, and the valve signature
    (:func:`valvediag.analysis.signature.valve_signature`) settles a BI
@@ -85,7 +90,7 @@ import numpy as np
 from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
 from .bumps import (SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps,
                     setpoint_process_screen)
-from .linearity import CycleShape, cycle_shape, mean_cycles, rest_share
+from .linearity import CycleShape, away_share, cycle_shape, mean_cycles, rest_share
 from .oscillation import (Oscillation, PhaseWander, detect_oscillation, phase_wander,
                           turned_cycles)
 from .quality import (bridge_short_gaps, despike, drawn_lines, longest_run, record_quantum,
@@ -126,6 +131,13 @@ RAMP_ARC_MIN = 0.02
 #: A loop that rests at its set point with its OP still for at least this
 #: share of its mean cycle swings with its load (:func:`rest_share`).
 REST_SHARE_MIN = 0.1
+#: A self-regulating loop whose fast motion leads away from its set point for
+#: at least this share (:func:`~valvediag.analysis.linearity.away_share`) is
+#: pushed off it by its load: a sticky valve's slips move it back (the
+#: benchmark's sticky flow and temperature cycles read at most 0.42, one
+#: biased to one side of its set point 0.50; most square loads 0.6-0.85).
+#: Sinusoidal loads, at 0.5, are told by their harmonics (:data:`DIST_LINEAR`).
+AWAY_SHARE_MIN = 0.55
 #: A valve "follows the OP" when a linear valve explains at least this share of
 #: the held-out variance of the valve position the PV implies ...
 FOLLOWS_R2 = 0.9
@@ -1063,6 +1075,33 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             "noise-driven resonance's does, where a valve's limit cycle keeps its amplitude"
             f"{also}: review the tuning or trace an external disturbance", process_screen=pscreen,
             shape=shape, **common)
+    if selfreg and not (travel is not None and travel.fault):
+        # the cycle's own centre, not the set point given: integral action
+        # holds the mean PV over a cycle at the set point, and a set point
+        # exported stale or offset would read every move either way
+        if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR:
+            # a valve that sticks or is loose makes harmonics that a process
+            # filters but does not remove (the benchmark's sticky flow and
+            # temperature cycles read 0.09 and more); a sinusoidal load makes none
+            return verdict(
+                "linear-oscillation", c_data * proc_conf * 0.8,
+                f"a sinusoidal oscillation (harmonic distortion {shape.pv_distortion:.3f}) "
+                "that no valve nonlinearity explains: review the tuning or trace an external "
+                "disturbance", process_screen=pscreen, shape=shape, **common)
+        sp_ok = s_ab is not None and bool(np.all(np.isfinite(s_ab)))
+        away = away_share(osc.baseline_removed, h, osc.period, sp=s_ab if sp_ok else None)
+        ev["away_share"] = away
+        if away >= AWAY_SHARE_MIN:
+            # a slip is the controller's correction arriving at once: it moves
+            # the PV towards its set point fastest; a load's step pushes it away
+            return verdict(
+                "linear-oscillation", c_data * proc_conf * 0.8,
+                f"{100 * away:.0f}% of the PV's fast motion leads away from its set point: "
+                "a load pushes it off and the controller brings it back, where a sticky "
+                "valve's slip, the controller's correction arriving at once, moves it "
+                "towards the set point fastest; trace the disturbance; method: the "
+                "direction of the PV's fast moves", process_screen=pscreen, shape=shape,
+                **common)
     if selfreg:
         src = "loop registry" if process_type == "self-regulating" else \
             (f"data test: the PV does not run in straight ramps (curvature "
