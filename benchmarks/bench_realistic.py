@@ -4,7 +4,8 @@ The loops come from ``valvediag.synth.cases`` (see its docstring): sticky and
 loose valves with and without limit cycles, on level (integrating) and flow
 (self-regulating) loops; healthy valves under non-sinusoidal disturbances, fast
 and slow (a pump that starts and stops every half hour to two hours), in
-ringing loops and in quiet ones; dead responses; 1-10 s sampling, 1-4 h
+ringing loops and in quiet ones; dead responses; sticky and disturbed slow
+self-regulating loops (temperatures, compositions); 1-10 s sampling, 1-4 h
 snapshots and full days, noise 0.5-3 % of the PV's range, 30 % compressed.
 Every loop runs through the scan's own per-loop analysis
 (``valvediag.scan.analyse_loop``, a 24 h window ending at the last sample),
@@ -32,7 +33,13 @@ generator counts cycles with its own crossings of the control error
 test; that change redrew loops in every set once more. On 2026-11-29 the
 class ``level-linear-slow-load`` was added (healthy levels under square,
 clipped, triangular or pumped loads of 30-120 minutes' period), last in
-``CLASSES``: every other class's loops are drawn as before.
+``CLASSES``: every other class's loops are drawn as before. On 2026-11-29
+too, two classes of slow self-regulating loops (a temperature or a
+composition: time constants of 60-600 s, dead times up to 0.3 of them) were
+added after it, ``temperature-stiction-cycle`` and
+``temperature-linear-disturbance`` (square, triangular, clipped or sine
+loads of 3-15 times the time constant and dead time); the other classes'
+loops are drawn as before.
 
 Usage: python benchmarks/bench_realistic.py [--loops N] [--set dev|dev2|heldout|all] [--workers W]
        [--classes C1,C2] [--misses] [--evidence FILE] [--valve-position]

@@ -14,8 +14,8 @@ records show more, and the scan must be right on all of it
   least three of them bending the level's record by more than its noise
   (:func:`_visible_slope_slips`: a valve that slips unseen is no labelled
   case);
-* sticky flow, pressure and temperature valves (self-regulating, time
-  constants 2-60 s): square-wave PV and triangular OP, periods 30 s to 20 min;
+* sticky flow and pressure valves (self-regulating, time constants 2-60 s):
+  square-wave PV and triangular OP, periods 30 s to 20 min;
 * sticky flow valves without a limit cycle: the OP ramps for minutes while the
   flow stays flat within its noise, then the flow jumps in a sample;
 * loose flow valves: a dead band after each reversal, no jump;
@@ -28,7 +28,12 @@ records show more, and the scan must be right on all of it
 * healthy valves in loops tuned too tightly (ringing), and quiet healthy
   loops with set-point moves, a wandering load and load steps (pumps that
   start and stop), half the flows behind slow integral action;
-* dead responses: the OP moves over tens of percent and the PV does not.
+* dead responses: the OP moves over tens of percent and the PV does not;
+* slow self-regulating loops (a temperature or a composition: time
+  constants 60-600 s, dead times up to 0.3 of them): sticky valves in limit
+  cycles, and healthy valves under periodic loads (square, triangular,
+  clipped or sine, periods of 3-15 times the time constant and dead time),
+  a snapshot of which holds too few cycles for their clock to be read.
 
 Each loop is simulated in closed loop (:func:`valvediag.models.simulate_loop`)
 with the controller at half the historian's sample time and measurement
@@ -75,6 +80,8 @@ CLASSES: dict[str, tuple[str, str, bool]] = {
     "dead-response": ("insufficient-data", "self-regulating", False),
     # appended last, so that every other class's draws stay as they were
     "level-linear-slow-load": ("linear-oscillation", "integrating", True),
+    "temperature-stiction-cycle": ("stiction", "self-regulating", True),
+    "temperature-linear-disturbance": ("linear-oscillation", "self-regulating", True),
 }
 #: Classes whose valve is faulty.
 FAULT_CLASSES = tuple(k for k, v in CLASSES.items() if v[0] in ("stiction", "backlash"))
@@ -337,6 +344,14 @@ def _try(klass: str, rng: np.random.Generator, cascade: bool = False):
         sim.update(tau=tau, kc=kc, ti=ti, load=50.0,
                    dead_time=float(rng.uniform(0, 0.05)) * tau,
                    lag=float(rng.uniform(0, 0.1)) * tau)
+    elif klass.startswith("temperature"):
+        # a slow self-regulating process: a heat exchanger, a mixing tank
+        tau = float(np.exp(rng.uniform(np.log(60), np.log(600))))
+        kc = float(rng.uniform(0.3, 1.0))
+        ti = float(rng.uniform(0.7, 1.5)) * tau
+        sim.update(tau=tau, kc=kc, ti=ti, load=0.0, sp=50.0,
+                   dead_time=float(rng.uniform(0, 0.3)) * tau,
+                   lag=float(rng.uniform(0, 0.1)) * tau)
     else:
         tau = float(np.exp(rng.uniform(np.log(2), np.log(60))))
         kc = float(rng.uniform(0.3, 1.2))
@@ -371,6 +386,14 @@ def _try(klass: str, rng: np.random.Generator, cascade: bool = False):
         sim.update(kc=float(rng.uniform(0.2, 0.6)), ti=float(rng.uniform(1.0, 4.0)) * tau)
         profile_load = _random_walk(rng, n, hc, float(rng.uniform(300.0, 1200.0)),
                                     0.5 * vp["DB"])
+    elif klass == "temperature-linear-disturbance":
+        # a load from upstream, slow against the loop: a few to many of its
+        # time constants a period, so that it settles or nearly between moves
+        period = float(rng.uniform(3.0, 15.0)) * (tau + sim["dead_time"])
+        kind = str(rng.choice(("square", "triangle", "clipped", "sine")))
+        amp = float(rng.uniform(1.0, 5.0))
+        profile_load = amp * _wave(kind, t, period, float(rng.uniform(0, 2 * np.pi)))
+        p.update(disturbance=kind, disturbance_period_s=period, disturbance_amplitude=amp)
     elif klass.endswith("linear-disturbance"):
         spp = float(rng.uniform(10.0, 60.0))
         period = spp * h
