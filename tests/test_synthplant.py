@@ -511,3 +511,27 @@ def test_a_flow_drawn_as_a_cascade_inner_loop_is_the_same_draw_with_a_wandering_
             assert np.max(np.abs(np.diff(wander))) < 0.01 * inner.sample_time
         else:
             assert "cascade" not in inner.params and np.array_equal(inner.sp, plain.sp)
+
+
+def test_the_temperature_classes_draw_slow_self_regulating_loops_and_leave_the_others_alone():
+    """Time constants of 60-600 s, dead times up to 0.3 of them; the loads of
+    the disturbed class 3-15 times the time constant and dead time a period.
+    Appended last, the two classes leave every other class's draws as they
+    were: each loop's stream is keyed by its class's index."""
+    from valvediag.synth.cases import CLASSES, draw_loop
+
+    names = list(CLASSES)
+    assert names[-2:] == ["temperature-stiction-cycle", "temperature-linear-disturbance"]
+    assert names.index("level-linear-slow-load") == 13
+    for klass in names[-2:]:
+        for i in range(3):
+            loop = draw_loop(klass, np.random.default_rng([5, names.index(klass), i]))
+            p = loop.params
+            assert loop.process_type == "self-regulating"
+            assert 60.0 <= p["tau_s"] <= 600.0 and p["dead_time_s"] <= 0.3 * p["tau_s"]
+            assert loop.truth == ("stiction" if "stiction" in klass else "linear-oscillation")
+            if "disturbance" in klass:
+                slow = p["disturbance_period_s"] / (p["tau_s"] + p["dead_time_s"])
+                assert 3.0 <= slow <= 15.0 and p["valve"] == "linear"
+            else:
+                assert p["valve"] == "kano" and 0.2 * p["S"] <= p["J"] <= p["S"]
