@@ -1082,7 +1082,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR:
             # a valve that sticks or is loose makes harmonics that a process
             # filters but does not remove (the benchmark's sticky flow and
-            # temperature cycles read 0.09 and more); a sinusoidal load makes none
+            # temperature cycles of the study and development seeds, 104, read 0.086
+            # and more); a sinusoidal load makes none
             return verdict(
                 "linear-oscillation", c_data * proc_conf * 0.8,
                 f"a sinusoidal oscillation (harmonic distortion {shape.pv_distortion:.3f}) "
