@@ -145,6 +145,18 @@ def _wave(kind: str, t: np.ndarray, period: float, phase: float) -> np.ndarray:
     return np.sin(x)
 
 
+#: Process and tuning drawn for each kind of loop: time constant range [s]
+#: (log-uniform), controller gain range, integral time range [time
+#: constants], most dead time and most lag [time constants], the load that
+#: the valve balances [% of travel]. A level integrates; a flow (or
+#: pressure) regulates itself fast, a temperature (or composition) slowly,
+#: behind a longer dead time.
+_PROCESSES = {
+    "level": ((60.0, 1000.0), (0.7, 3.0), (1.0, 2.4), 0.05, 0.1, 50.0),
+    "flow": ((2.0, 60.0), (0.3, 1.2), (0.5, 1.5), 0.2, 0.2, 0.0),
+    "temperature": ((60.0, 600.0), (0.3, 1.0), (0.7, 1.5), 0.3, 0.1, 0.0),
+}
+
 #: Amplitude range of each of the three sines of a cascade's set point [PV unit].
 CASCADE_WANDER = (0.1, 0.5)
 
@@ -337,28 +349,13 @@ def _try(klass: str, rng: np.random.Generator, cascade: bool = False):
     profile_load = np.zeros(n)
     profile_sp = np.zeros(n)
     cycle_expected = CLASSES[klass][2]
-    if integ:
-        tau = float(np.exp(rng.uniform(np.log(60), np.log(1000))))
-        kc = float(rng.uniform(0.7, 3.0))
-        ti = float(rng.uniform(1.0, 2.4)) * tau
-        sim.update(tau=tau, kc=kc, ti=ti, load=50.0,
-                   dead_time=float(rng.uniform(0, 0.05)) * tau,
-                   lag=float(rng.uniform(0, 0.1)) * tau)
-    elif klass.startswith("temperature"):
-        # a slow self-regulating process: a heat exchanger, a mixing tank
-        tau = float(np.exp(rng.uniform(np.log(60), np.log(600))))
-        kc = float(rng.uniform(0.3, 1.0))
-        ti = float(rng.uniform(0.7, 1.5)) * tau
-        sim.update(tau=tau, kc=kc, ti=ti, load=0.0, sp=50.0,
-                   dead_time=float(rng.uniform(0, 0.3)) * tau,
-                   lag=float(rng.uniform(0, 0.1)) * tau)
-    else:
-        tau = float(np.exp(rng.uniform(np.log(2), np.log(60))))
-        kc = float(rng.uniform(0.3, 1.2))
-        ti = float(rng.uniform(0.5, 1.5)) * tau
-        sim.update(tau=tau, kc=kc, ti=ti, load=0.0, sp=50.0,
-                   dead_time=float(rng.uniform(0, 0.2)) * tau,
-                   lag=float(rng.uniform(0, 0.2)) * tau)
+    (t_lo, t_hi), (k_lo, k_hi), (i_lo, i_hi), dead, lag, load0 = _PROCESSES[
+        "level" if integ else "temperature" if klass.startswith("temperature") else "flow"]
+    tau = float(np.exp(rng.uniform(np.log(t_lo), np.log(t_hi))))
+    kc = float(rng.uniform(k_lo, k_hi))
+    ti = float(rng.uniform(i_lo, i_hi)) * tau
+    sim.update(tau=tau, kc=kc, ti=ti, load=load0, dead_time=float(rng.uniform(0, dead)) * tau,
+               lag=float(rng.uniform(0, lag)) * tau)
     valve, vp = "linear", {}
     if "stiction" in klass:
         S = float(rng.uniform(1.0, 6.0))
