@@ -1075,20 +1075,26 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             "noise-driven resonance's does, where a valve's limit cycle keeps its amplitude"
             f"{also}: review the tuning or trace an external disturbance", process_screen=pscreen,
             shape=shape, **common)
+    sinusoidal = bool(np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR)
+
+    def sinusoid():
+        """A PV without harmonics beyond its noise's: no valve nonlinearity."""
+        conf = c_data * proc_conf * (0.5 + 0.5 * (1.0 - shape.pv_distortion / DIST_LINEAR))
+        return verdict("linear-oscillation", conf,
+                       f"a sinusoidal oscillation (harmonic distortion {shape.pv_distortion:.3f}) "
+                       "that no valve nonlinearity explains: review the tuning or trace an "
+                       "external disturbance", process_screen=pscreen, shape=shape, **common)
+
     if selfreg and not (travel is not None and travel.fault):
-        # the cycle's own centre, not the set point given: integral action
-        # holds the mean PV over a cycle at the set point, and a set point
-        # exported stale or offset would read every move either way
-        if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR:
+        if sinusoidal:
             # a valve that sticks or is loose makes harmonics that a process
             # filters but does not remove (the benchmark's sticky flow and
-            # temperature cycles of the study and development seeds, 104, read 0.086
-            # and more); a sinusoidal load makes none
-            return verdict(
-                "linear-oscillation", c_data * proc_conf * 0.8,
-                f"a sinusoidal oscillation (harmonic distortion {shape.pv_distortion:.3f}) "
-                "that no valve nonlinearity explains: review the tuning or trace an external "
-                "disturbance", process_screen=pscreen, shape=shape, **common)
+            # temperature cycles of the study and development seeds, 104, read
+            # 0.086 and more); a sinusoidal load makes none
+            return sinusoid()
+        # read about the cycle's own centre, not the set point given: integral
+        # action holds the mean PV over a cycle at the set point, and a set
+        # point exported stale or offset would read every move either way
         sp_ok = s_ab is not None and bool(np.all(np.isfinite(s_ab)))
         away = away_share(osc.baseline_removed, h, osc.period, sp=s_ab if sp_ok else None)
         ev["away_share"] = away
@@ -1149,12 +1155,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             "when it answers a changing load, and the turns are the load's; trace the "
             "disturbance; method: the straightness of the level's ramps",
             process_screen=pscreen, shape=shape, **common)
-    if np.isfinite(shape.pv_distortion) and shape.pv_distortion < DIST_LINEAR and not valve_faulty:
-        conf = c_data * proc_conf * (0.5 + 0.5 * (1.0 - shape.pv_distortion / DIST_LINEAR))
-        return verdict("linear-oscillation", conf,
-                       f"a sinusoidal oscillation (harmonic distortion {shape.pv_distortion:.3f}) "
-                       "that no valve nonlinearity explains: review the tuning or trace an "
-                       "external disturbance", process_screen=pscreen, shape=shape, **common)
+    if sinusoidal and not valve_faulty:
+        return sinusoid()
     bres = backlash_index(x, h, method=method)
     def finite_mean(a):
         a = np.asarray(a, dtype=float)
