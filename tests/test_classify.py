@@ -6,7 +6,8 @@ import pytest
 
 from valvediag import VERDICTS, classify_loop, simulate_loop
 from valvediag.analysis.bi import THRESHOLDS
-from valvediag.analysis.classify import AWAY_SHARE_MIN, RAMP_ARC_MIN, RAMP_CURVATURE_MAX
+from valvediag.analysis.classify import (AWAY_SHARE_MIN, ONSET_SMOOTH, RAMP_ARC_MIN,
+                                         RAMP_CURVATURE_MAX)
 from valvediag.analysis.oscillation import acf_period, detect_oscillation, phase_wander
 from valvediag.analysis.signature import valve_signature
 from valvediag.paper.scenarios import draw_cases, record
@@ -162,6 +163,76 @@ def test_away_share_reads_a_slip_towards_the_set_point_and_a_load_step_away_from
     assert away_share(lagging, 1.0, P) > away_share(slip, 1.0, P) + 0.05
     assert away_share(lagging, 1.0, P, sp=sp) <= away_share(slip, 1.0, P)
     assert np.isnan(away_share(slip, 1.0, 1.0))              # no period to read
+
+
+def test_move_onset_reads_a_slip_starting_at_once_and_a_turning_load_gathering_speed():
+    """Hand-built PVs of 200 samples a cycle, with a little white noise. A
+    sticky valve's slip: each half-cycle the PV leaves its plateau as a
+    process of 25 samples' time constant answers a step, at full speed. A
+    triangular load through a lag of 25 samples: the PV turns as gradually
+    as the lag lets it. A sine gathers speed as it loses it. A slip through
+    a process of 2 samples is over within the smoothing step: a jump."""
+    from scipy.signal import lfilter
+
+    from valvediag.analysis.linearity import move_onset
+    from valvediag.analysis.oscillation import detect_oscillation
+
+    n, P = 4000, 200
+    t = np.arange(n)
+    half = (t // (P // 2)) % 2 * 2 - 1
+    since = (t % (P // 2)).astype(float)
+    tri = 2.0 * np.abs(((t / P) % 1.0) - 0.5) * 2.0 - 1.0
+    a = np.exp(-1.0 / 25.0)
+    shapes = {"slip": half * (1.0 - 2.0 * np.exp(-since / 25.0)),
+              "jump": half * (1.0 - 2.0 * np.exp(-since / 2.0)),
+              "triangle": lfilter([1 - a], [1, -a], tri),
+              "sine": np.sin(2 * np.pi * t / P)}
+    read = {}
+    for name, y in shapes.items():
+        y = y + np.random.default_rng(1).normal(0.0, 0.05, n)
+        osc = detect_oscillation(y, 1.0)
+        read[name] = move_onset(y, 1.0, osc.period, osc.apex_idx, osc.apex_sign)
+    assert read["slip"] < 0.4
+    assert read["jump"] < 0.2
+    assert read["triangle"] > ONSET_SMOOTH
+    assert read["sine"] == pytest.approx(0.94, abs=0.06)     # a cosine's mean over 36 degrees
+    # a set-point step moves the PV by itself: the swings it falls in are left out
+    y = shapes["slip"] + np.random.default_rng(1).normal(0.0, 0.05, n)
+    osc = detect_oscillation(y, 1.0)
+    sp = np.where(t >= 2 * P + 30, 1.0, 0.0)
+    kept = move_onset(y + sp, 1.0, osc.period, osc.apex_idx, osc.apex_sign, sp=sp)
+    assert kept == pytest.approx(read["slip"], abs=0.1)
+    assert np.isnan(move_onset(y, 1.0, P, osc.apex_idx[:3], osc.apex_sign[:3]))
+
+
+def test_a_slow_loop_under_a_triangular_load_is_no_valve_fault():
+    """Six hours at 2 s of the temperature-like loop below (200 s time
+    constant, 30 s dead time) under a triangular load of 30 minutes'
+    period: 11 cycles, too few for the phase's wander to be read, whose fast
+    motion leads neither away from the set point nor towards it. The valve
+    signature read ``stiction`` before (a sticky valve removed 94 % of a
+    linear valve's held-out error); the PV's swings gather speed gradually,
+    as no slip starts them. The same loop with a sticky valve starts its
+    swings at once and reads ``stiction``."""
+    from valvediag.synth.cases import _wave
+
+    hc, warm = 1.0, 4 * 3600
+    n = warm + 6 * 3600
+    common = dict(process="self-regulating", sample_time=hc, n_samples=n, kc=0.5, ti=200.0,
+                  tau=200.0, lag=10.0, dead_time=30.0, sp=50.0, noise_std=0.02, seed=4)
+    load = 4.0 * _wave("triangle", np.arange(n) * hc, 1800.0, 0.4)
+    sim = simulate_loop(valve="linear", load_profile=load, **common)
+    d = classify_loop(sim.pv[warm::2], sim.op[warm::2], sim.sp[warm::2], sample_time=2.0,
+                      process_type="self-regulating")
+    assert d.cycles < 40 and d.evidence["away_share"] < AWAY_SHARE_MIN
+    assert d.verdict == "linear-oscillation", d.reason
+    assert d.evidence["move_onset"] >= ONSET_SMOOTH and "gather speed" in d.reason
+    sim = simulate_loop(valve="kano", valve_params={"S": 2.0, "J": 2.0}, sp_step=1.0,
+                        sp_step_time=60.0, valve_noise_band=0.1, **common)
+    d = classify_loop(sim.pv[warm::2], sim.op[warm::2], sim.sp[warm::2], sample_time=2.0,
+                      process_type="self-regulating")
+    assert d.evidence["move_onset"] < 0.4
+    assert d.verdict == "stiction", d.reason
 
 
 @pytest.mark.parametrize("kind", ["square", "clipped", "sine"])
