@@ -337,7 +337,9 @@ def away_share(error, sample_time: float, period: float, sp=None) -> float:
     It cannot tell a triangular load from a sticky valve: a loop holds a
     steady error off its set point while its OP follows each ramp of the
     load, and the error crosses the set point where the load turns, as a
-    sticky valve's square wave does (0.19-0.52 read). Where the process is
+    sticky valve's square wave does (0.19-0.52 read); how the PV's swings
+    start tells them apart where the process's lag is resolved
+    (:func:`move_onset`). Where the process is
     so fast that a slip crosses the set point within one step, the step
     sees only the jump's two ends, and a move split evenly about the set
     point reads either way. Noise that is large against the swing leaves

@@ -89,6 +89,10 @@ READ_LOOPS = 10
 #: record cut by gaps (one stretch's reading is 0.85 times its data's
 #: confidence: the pooled one counts the gaps' cycles).
 POOLED_CLOCK_CONFIDENCE = 0.75
+#: Fewest cycles a stretch of a record cut by gaps must show for its cycle to
+#: be read with its neighbours' (:func:`_pooled_cycles`): the classifier's own
+#: floor for an oscillation at all [-].
+POOL_MIN_CYCLES = 1.5
 #: The loop model's lag and the lag behind the Backlash Index's turns agree
 #: within this factor when a valve slips behind a lag (:func:`lags_agree`).
 LAG_AGREEMENT = 1.5
@@ -727,7 +731,10 @@ def analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     The classifier analyses one gap-free segment at a time, so a day
     split by longer gaps is analysed in pieces, those of at least
     :data:`MIN_SEGMENT_S` (or :data:`ENOUGH_SAMPLES` samples, where they
-    last less). A record whose stretches show no oscillation, no event and no
+    last less). Where gaps cut a cycle into stretches that each hold fewer
+    than ``min_cycles`` of it, but together enough, each is read on its own
+    few cycles and the readings vote (:func:`_pooled_cycles`). A record
+    whose stretches show no oscillation, no event and no
     dead response reads ``no-oscillation`` only where its usable stretches
     last ``min_cycles`` times the shortest stretch analysed (30 minutes at
     one sample a second or slower): a cycle of 10 minutes, a slow level's,
@@ -804,6 +811,68 @@ def _pooled_rests(seg_diag, process_type: str):
               "record's stretches")
     return ("backlash", pooled.confidence * (1.0 if known else 0.8), reason, used,
             {"reversal_rests": dict(pooled.as_dict(), stretches=len(used))})
+
+
+def _pooled_cycles(aligned: AlignedLoop, seg_diag, process_type: str, config: ScanConfig,
+                   compressed: bool = False) -> tuple[list, float]:
+    """Episodes of a cycle that gaps cut into stretches too short to show it alone.
+
+    Parameters
+    ----------
+    aligned : AlignedLoop
+    seg_diag : list of (start, stop, LoopDiagnosis)
+        Each stretch's diagnosis at the scan's ``min_cycles``.
+    process_type : str
+    config : ScanConfig
+    compressed : bool
+
+    Returns
+    -------
+    episodes : list of (start, stop, LoopDiagnosis)
+        The stretches re-read with :data:`POOL_MIN_CYCLES` as their floor,
+        those whose verdict is an episode's; empty where the stretches do not
+        make up a cycle together.
+    cycles : float
+        The cycles they hold in all.
+
+    Notes
+    -----
+    A record cut every hour by a few minutes' gap (a collector that drops
+    its link, an export that lost a page) holds a 20-minute cycle in
+    stretches of 55 minutes: two or two and a half cycles each, fewer than
+    the ``min_cycles`` a verdict needs, and each stretch reads
+    ``insufficient-data``, though the day holds seventy cycles. Gaps that
+    long are not bridged (a line over a quarter of a cycle or more erases
+    its turns). Where two or more stretches each show a regular oscillation
+    of at least :data:`POOL_MIN_CYCLES` cycles, at periods within
+    :data:`PERIOD_AGREE` of their median, and together ``min_cycles`` or
+    more, each is read again with :data:`POOL_MIN_CYCLES` as its floor and
+    the readings vote as a gap-free record's episodes do. Each stretch's
+    reading rests on its own few cycles (its confidence falls with them);
+    the vote, the record's clock (:func:`_pooled_clock`) and its valve
+    events are read over all of them. A stretch that shows a different
+    period holds another oscillation and is left out.
+    """
+    short = [(a, b, d) for a, b, d in seg_diag
+             if d.verdict == "insufficient-data" and d.oscillation is not None
+             and d.oscillation.is_regular and math.isfinite(d.period) and d.period > 0
+             and POOL_MIN_CYCLES <= d.cycles < config.min_cycles]
+    if len(short) < 2:
+        return [], 0.0
+    mid = float(np.median([d.period for _, _, d in short]))
+    agree = [e for e in short if abs(math.log(e[2].period / mid)) <= math.log(PERIOD_AGREE)]
+    cycles = sum(d.cycles for _, _, d in agree)
+    if len(agree) < 2 or cycles < config.min_cycles:
+        return [], 0.0
+    relaxed = dataclasses.replace(config, min_cycles=POOL_MIN_CYCLES)
+    out = []
+    for a, b, _ in agree:
+        d = _classify(aligned, a, b, process_type, relaxed, compressed)
+        if d.verdict in EPISODE_VERDICTS:
+            out.append((a, b, d))
+    if len(out) < 2:
+        return [], 0.0
+    return out, float(sum(d.cycles for _, _, d in out))
 
 
 def _pooled_clock(seg_diag, h: float) -> PhaseWander | None:
@@ -930,6 +999,14 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
 
     span, span_source = _span(spec, aligned)
     ev.update(span=span, span_source=span_source)
+    pooled_cycles = 0.0
+    if len(segs) > 1 and not any(e[2].verdict != "insufficient-data" for e in episodes):
+        # a cycle that gaps cut into stretches of too few cycles each
+        read, pooled_cycles = _pooled_cycles(aligned, seg_diag, spec.process_type, config,
+                                             q.compressed)
+        if read:
+            episodes = read
+            ev["pooled_cycles"] = {"stretches": len(read), "cycles": round(pooled_cycles, 2)}
     diagnostic = [e for e in episodes if e[2].verdict != "insufficient-data"]
     voters = diagnostic or episodes
     too_short = False
@@ -950,6 +1027,10 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
             others = ", ".join(f"{v} {100 * w / total:.0f}%" for v, w in
                                sorted(weights.items(), key=lambda kv: -kv[1]) if v != verdict)
             reason += f" (episodes disagree: {verdict} {100 * agreement:.0f}%, {others})"
+        if pooled_cycles:
+            reason = (f"over {len(voters)} stretches cut by gaps, of fewer than "
+                      f"{config.min_cycles:g} cycles each ({pooled_cycles:.1f} in all), each read "
+                      f"on its own cycles: {reason}")
         ev.update(episode_votes={v: round(w / total, 4) for v, w in weights.items()},
                   agreement=round(agreement, 4))
         clock = _pooled_clock(seg_diag, h) \
