@@ -153,10 +153,10 @@ def _work(args):
     gaps = int(rest[4]) if len(rest) > 4 else 0
     from valvediag.io.registry import LoopSpec
     from valvediag.scan import LoopJob, ScanConfig, analyse_loop
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
     from valvediag.synth.plant import historian_record
 
-    rng = np.random.default_rng([seed, list(CLASSES).index(klass), i])
+    rng = benchmark_rng(klass, seed, i)
     loop = draw_loop(klass, rng, name=f"{klass}-{i:02d}", cascade=cascade)
     known = rng.random() < 0.7
     if upside_down:
@@ -175,7 +175,7 @@ def _work(args):
     frames = _frames(loop, position)
     if gaps:
         frames = _cut_gaps(frames, loop.duration_s, gaps,
-                           np.random.default_rng([seed, list(CLASSES).index(klass), i, 7]))
+                           benchmark_rng(klass, seed, i, 7))
     t0 = time.perf_counter()
     r = analyse_loop(job, frames, ScanConfig(window_hours=24))
     return dict(klass=klass, index=i, seed=seed, truth=loop.truth, verdict=r.verdict,

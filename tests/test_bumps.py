@@ -186,9 +186,9 @@ def test_a_healthy_level_whose_kinks_its_op_made_is_not_called_sticky(seed, inde
     slips: the OP's travel before each, through the valve's gain read at the
     set-point steps, makes the slope step the kink shows."""
     from valvediag.analysis.signature import stick_slip_events
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
-    rng = np.random.default_rng([seed, list(CLASSES).index("level-healthy"), index])
+    rng = benchmark_rng("level-healthy", seed, index)
     loop = draw_loop("level-healthy", rng)
     kinks = stick_slip_events(loop.pv, loop.op, loop.sample_time, process="integrating",
                               sp=loop.sp)

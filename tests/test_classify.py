@@ -205,57 +205,56 @@ def test_move_onset_reads_a_slip_starting_at_once_and_a_turning_load_gathering_s
     assert np.isnan(move_onset(y, 1.0, P, osc.apex_idx[:3], osc.apex_sign[:3]))
 
 
-def test_a_slow_loop_under_a_triangular_load_is_no_valve_fault():
-    """Six hours at 2 s of the temperature-like loop below (200 s time
-    constant, 30 s dead time) under a triangular load of 30 minutes'
-    period: 11 cycles, too few for the phase's wander to be read, whose fast
-    motion leads neither away from the set point nor towards it. The valve
-    signature read ``stiction`` before (a sticky valve removed 94 % of a
-    linear valve's held-out error); the PV's swings gather speed gradually,
-    as no slip starts them. The same loop with a sticky valve starts its
-    swings at once and reads ``stiction``."""
+def _temperature_like(load=None):
+    """Six hours at 2 s of a self-regulating loop of 200 s time constant and
+    30 s dead time (a temperature's), classified: a linear valve under
+    ``load`` (kind, amplitude [%]; a period of 30 minutes), or without a load
+    a sticky valve (S = J = 2 %)."""
     from valvediag.synth.cases import _wave
 
     hc, warm = 1.0, 4 * 3600
     n = warm + 6 * 3600
     common = dict(process="self-regulating", sample_time=hc, n_samples=n, kc=0.5, ti=200.0,
                   tau=200.0, lag=10.0, dead_time=30.0, sp=50.0, noise_std=0.02, seed=4)
-    load = 4.0 * _wave("triangle", np.arange(n) * hc, 1800.0, 0.4)
-    sim = simulate_loop(valve="linear", load_profile=load, **common)
-    d = classify_loop(sim.pv[warm::2], sim.op[warm::2], sim.sp[warm::2], sample_time=2.0,
-                      process_type="self-regulating")
+    if load is None:
+        sim = simulate_loop(valve="kano", valve_params={"S": 2.0, "J": 2.0}, sp_step=1.0,
+                            sp_step_time=60.0, valve_noise_band=0.1, **common)
+    else:
+        kind, amplitude = load
+        sim = simulate_loop(valve="linear", **common,
+                            load_profile=amplitude * _wave(kind, np.arange(n) * hc, 1800.0, 0.4))
+    return classify_loop(sim.pv[warm::2], sim.op[warm::2], sim.sp[warm::2], sample_time=2.0,
+                         process_type="self-regulating")
+
+
+def test_a_slow_loop_under_a_triangular_load_is_no_valve_fault():
+    """The temperature-like loop under a triangular load: 11 cycles, too few
+    for the phase's wander to be read, whose fast motion leads neither away
+    from the set point nor towards it. The valve signature read ``stiction``
+    before (a sticky valve removed 94 % of a linear valve's held-out error);
+    the PV's swings gather speed gradually, as no slip starts them. The same
+    loop with a sticky valve starts its swings at once and reads
+    ``stiction``."""
+    d = _temperature_like(("triangle", 4.0))
     assert d.cycles < 40 and d.evidence["away_share"] < AWAY_SHARE_MIN
     assert d.verdict == "linear-oscillation", d.reason
     assert d.evidence["move_onset"] >= ONSET_SMOOTH and "gather speed" in d.reason
-    sim = simulate_loop(valve="kano", valve_params={"S": 2.0, "J": 2.0}, sp_step=1.0,
-                        sp_step_time=60.0, valve_noise_band=0.1, **common)
-    d = classify_loop(sim.pv[warm::2], sim.op[warm::2], sim.sp[warm::2], sample_time=2.0,
-                      process_type="self-regulating")
+    d = _temperature_like()
     assert d.evidence["move_onset"] < 0.4
     assert d.verdict == "stiction", d.reason
 
 
 @pytest.mark.parametrize("kind", ["square", "clipped", "sine"])
 def test_a_slow_loop_pushed_off_its_set_point_by_its_load_is_no_valve_fault(kind):
-    """Six hours at 2 s of a healthy self-regulating loop of 200 s time
-    constant and 30 s dead time (a temperature's) under a load of 30
-    minutes' period: 11 cycles, too few for the phase's wander to be read. A
-    linear valve without the load explains the cycle poorly, and a sticky
-    valve's band lags the OP into it: the valve signature read ``stiction``
-    for each load before. Under the square and clipped loads the loop's
-    fast motion leads away from its set point; the sine's has no harmonics.
-    The same loop with a sticky valve cycles with its fast motion towards
-    its set point and reads ``stiction``."""
-    from valvediag.synth.cases import _wave
-
-    hc, warm = 1.0, 4 * 3600
-    n = warm + 6 * 3600
-    common = dict(process="self-regulating", sample_time=hc, n_samples=n, kc=0.5, ti=200.0,
-                  tau=200.0, lag=10.0, dead_time=30.0, sp=50.0, noise_std=0.02, seed=4)
-    load = 3.0 * _wave(kind, np.arange(n) * hc, 1800.0, 0.4)
-    sim = simulate_loop(valve="linear", load_profile=load, **common)
-    d = classify_loop(sim.pv[warm::2], sim.op[warm::2], sim.sp[warm::2], sample_time=2.0,
-                      process_type="self-regulating")
+    """The temperature-like loop under a load of 30 minutes' period: 11
+    cycles, too few for the phase's wander to be read. A linear valve
+    without the load explains the cycle poorly, and a sticky valve's band
+    lags the OP into it: the valve signature read ``stiction`` for each load
+    before. Under the square and clipped loads the loop's fast motion leads
+    away from its set point; the sine's has no harmonics. The same loop with
+    a sticky valve cycles with its fast motion towards its set point and
+    reads ``stiction``."""
+    d = _temperature_like((kind, 3.0))
     assert d.cycles < 40 and not d.evidence["phase_wander"]["keeps_clock"]
     assert d.verdict == "linear-oscillation", d.reason
     if kind == "sine":
@@ -264,10 +263,7 @@ def test_a_slow_loop_pushed_off_its_set_point_by_its_load_is_no_valve_fault(kind
         assert "sinusoidal" in d.reason and d.evidence["pv_distortion"] < 0.03
     else:
         assert d.evidence["away_share"] >= AWAY_SHARE_MIN and "leads away" in d.reason
-    sim = simulate_loop(valve="kano", valve_params={"S": 2.0, "J": 2.0}, sp_step=1.0,
-                        sp_step_time=60.0, valve_noise_band=0.1, **common)
-    d = classify_loop(sim.pv[warm::2], sim.op[warm::2], sim.sp[warm::2], sample_time=2.0,
-                      process_type="self-regulating")
+    d = _temperature_like()
     assert d.evidence["away_share"] < 0.4
     assert d.verdict == "stiction", d.reason
 
@@ -590,9 +586,9 @@ def test_a_compressed_level_under_a_triangular_load_is_not_called_sticky(seed, c
 def _study_record(klass, seed, index):
     """A loop of the realistic benchmark, drawn from its own stream as
     ``loop_set`` draws it, and the last 24 h of its PV, OP and SP."""
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
-    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    loop = draw_loop(klass, benchmark_rng(klass, seed, index))
     n = int(24 * 3600 / loop.sample_time)
     return loop, loop.pv[-n:], loop.op[-n:], loop.sp[-n:]
 

@@ -88,9 +88,9 @@ def test_realistic_loads_keep_time_and_valves_do_not(klass, seed, index, clock):
     healthy valves that the scan called sticky keep a clock's time, and read
     linear-oscillation; sticky valves' limit cycles wander and keep their verdict."""
     from valvediag import classify_loop
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
-    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    loop = draw_loop(klass, benchmark_rng(klass, seed, index))
     d = classify_loop(loop.pv, loop.op, loop.sp, sample_time=loop.sample_time,
                       process_type=loop.process_type)
     pw = d.evidence["phase_wander"]

@@ -255,10 +255,10 @@ def test_rests_found_on_a_whole_record_are_not_split_into_cycles():
     # whose record holds a weak, irregular period: its blocks, each read for a
     # cycle, read a valve that follows the OP, and outvoted the rests found
     # on the whole record (no-oscillation before the rests were read)
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
     klass = "flow-backlash-events"
-    loop = draw_loop(klass, np.random.default_rng([11, list(CLASSES).index(klass), 6]))
+    loop = draw_loop(klass, benchmark_rng(klass, 11, 6))
     r = _scan(loop.pv, loop.op, loop.sp, loop.sample_time)
     assert r.verdict == "backlash", r.reason
     assert len(r.episodes) == 1
@@ -287,10 +287,10 @@ def test_a_loose_flow_valve_under_a_ringing_load_is_read_by_its_rests_too():
     # a loose flow valve of the realistic benchmark's study seeds (13, index 3)
     # whose record rings with a wandering amplitude, as a noise-driven
     # resonance does: it read linear-oscillation before its rests were read
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
     klass = "flow-backlash-events"
-    loop = draw_loop(klass, np.random.default_rng([13, list(CLASSES).index(klass), 3]))
+    loop = draw_loop(klass, benchmark_rng(klass, 13, 3))
     r = _scan(loop.pv, loop.op, loop.sp, loop.sample_time)
     assert r.verdict == "backlash", r.reason
     assert "rests at the OP's reversals" in r.reason
@@ -300,10 +300,10 @@ def test_a_loose_flow_valve_whose_events_are_undecided_is_named_by_its_turns():
     # a loose flow valve of the realistic benchmark's study seeds (12, index
     # 1): its valve events read 3 slips and 4 take-ups, undecided, but the PV
     # turns at a fixed travel of the OP after its reversals, as a dead band's
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
     klass = "flow-backlash-events"
-    loop = draw_loop(klass, np.random.default_rng([12, list(CLASSES).index(klass), 1]))
+    loop = draw_loop(klass, benchmark_rng(klass, 12, 1))
     d = classify_loop(loop.pv, loop.op, loop.sp, sample_time=loop.sample_time,
                       process_type="self-regulating")
     assert d.verdict == "backlash", d.reason
@@ -317,10 +317,10 @@ def test_a_loose_flow_valve_named_by_its_turns_is_sized_from_them():
     # 3) that read no-oscillation before the turns were read: its rests are
     # too few, but the PV turned at a fixed OP travel at most of its 66
     # excursions
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
     klass = "flow-backlash-events"
-    loop = draw_loop(klass, np.random.default_rng([12, list(CLASSES).index(klass), 3]))
+    loop = draw_loop(klass, benchmark_rng(klass, 12, 3))
     r = _scan(loop.pv, loop.op, loop.sp, loop.sample_time)
     assert r.verdict == "backlash", r.reason
     rests = r.evidence["reversal_rests"]

@@ -783,9 +783,9 @@ def test_valve_events_on_a_whole_record_are_not_outvoted_by_parts_that_find_no_f
     # too fast for its shape), outvoted them. Where the parts read the fault
     # in their cycle (the last, whose whole record reads as many slips as
     # take-ups), they name it.
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
-    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    loop = draw_loop(klass, benchmark_rng(klass, seed, index))
     k0 = int(trim * loop.pv.size)
     pv, op, sp = loop.pv[k0:], loop.op[k0:], loop.sp[k0:]
     t = np.arange(pv.size) * loop.sample_time
@@ -869,9 +869,9 @@ def test_a_clock_driven_load_is_read_over_the_stretches_of_a_record_cut_by_gaps(
     # stretch by stretch, where 55 minutes hold too few cycles to read its
     # phase; over the stretches its phase keeps a clock's time. A sticky
     # valve's limit cycle, cut the same way, wanders
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
-    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    loop = draw_loop(klass, benchmark_rng(klass, seed, index))
     t = np.arange(loop.pv.size) * loop.sample_time
     r = _scan_rows_kept(loop, t % 3600.0 < 3300.0, loop.process_type)
     assert r.evidence["segments"] >= 4
@@ -892,9 +892,9 @@ def test_a_loose_flows_rests_are_counted_over_the_stretches_of_a_record_cut_by_g
     # every hour: each 55-minute stretch holds too few of a loose valve's
     # rests at the OP's reversals (it read no-oscillation before), the day
     # holds enough; a healthy flow cut the same way leaves none
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
-    loop = draw_loop(klass, np.random.default_rng([15, list(CLASSES).index(klass), 1]))
+    loop = draw_loop(klass, benchmark_rng(klass, 15, 1))
     t = np.arange(loop.pv.size) * loop.sample_time
     r = _scan_rows_kept(loop, t % 3600.0 < 3300.0, loop.process_type)
     assert r.evidence["segments"] >= 20
@@ -921,9 +921,9 @@ def test_a_cycle_cut_into_stretches_of_too_few_cycles_is_read_over_them(
     # least 3", insufficient-data before), and the gaps, over a quarter of
     # its period, are not bridged. Together the stretches hold the cycles a
     # verdict needs, each is read on its own, and they agree
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
-    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    loop = draw_loop(klass, benchmark_rng(klass, seed, index))
     t = np.arange(loop.pv.size) * loop.sample_time
     r = _scan_rows_kept(loop, t % 3600.0 < 3300.0, loop.process_type)
     pooled = r.evidence["pooled_cycles"]
@@ -942,10 +942,10 @@ def test_stretches_of_too_few_cycles_that_read_apart_say_too_little():
     # valve's cycle, the other as a sticky one's (51 % against 49 % of the
     # weight). Pooled as they stand, the loop read linear-oscillation; each
     # stretch's few cycles tell too little for a vote that close
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
     klass = "temperature-stiction-cycle"
-    loop = draw_loop(klass, np.random.default_rng([15, list(CLASSES).index(klass), 1]))
+    loop = draw_loop(klass, benchmark_rng(klass, 15, 1))
     t = np.arange(loop.pv.size) * loop.sample_time
     keep = ~(((t >= 4533.0) & (t < 6302.0)) | ((t >= 7600.0) & (t < 8219.0))
              | ((t >= 14045.0) & (t < 15524.0)))
@@ -964,9 +964,9 @@ def test_a_slow_levels_cycle_is_read_across_gaps_of_a_quarter_of_its_period(
     # stretch holds two cycles, too few (they read no-oscillation); the
     # gaps, under a quarter of the period the joined day shows, are bridged
     # and the day is read whole. The model fits score only what was measured
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
-    loop = draw_loop(klass, np.random.default_rng([10, list(CLASSES).index(klass), index]))
+    loop = draw_loop(klass, benchmark_rng(klass, 10, index))
     t = np.arange(loop.pv.size) * loop.sample_time
     r = _scan_rows_kept(loop, t % 3600.0 < 3300.0, "integrating")
     assert r.evidence["segments"] == 1
@@ -990,10 +990,10 @@ def test_a_wandering_flow_is_not_bridged_over_long_gaps():
     # reads a wandering load's swing as a period of 57 minutes: its gaps of
     # 10-30 minutes would pass for short, but the record they would join
     # shows no regular oscillation, so the stretches are read as they are
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
     klass = "flow-backlash-events"
-    loop = draw_loop(klass, np.random.default_rng([15, list(CLASSES).index(klass), 0]))
+    loop = draw_loop(klass, benchmark_rng(klass, 15, 0))
     t = np.arange(loop.pv.size) * loop.sample_time
     keep = _outside_three_gaps(t, np.random.default_rng([15, 0, 7]), loop.duration_s)
     r = _scan_rows_kept(loop, keep, "self-regulating")
@@ -1005,10 +1005,10 @@ def test_a_levels_kinks_are_counted_over_the_stretches_of_a_record_cut_by_gaps()
     # a sticky level without a cycle (the realistic benchmark's study draw
     # 13-1) with three gaps of 10-30 minutes: each stretch holds too few of
     # its kinks, the day holds enough (it read no-oscillation before)
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
     klass = "level-stiction-events"
-    loop = draw_loop(klass, np.random.default_rng([13, list(CLASSES).index(klass), 1]))
+    loop = draw_loop(klass, benchmark_rng(klass, 13, 1))
     t = np.arange(loop.pv.size) * loop.sample_time
     keep = _outside_three_gaps(t, np.random.default_rng([13, 1, 7]), t[-1])
     r = _scan_rows_kept(loop, keep, "integrating")
@@ -1030,9 +1030,9 @@ def test_a_levels_turns_against_a_compressed_ops_reversals_placed_by_the_pi_law(
     # levels read backlash by their rounded turns. The PI law fitted to the
     # stored moves places the reversals: the sticky levels' turns come after
     # them, the loose level's before
-    from valvediag.synth.cases import CLASSES, draw_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
 
-    loop = draw_loop(klass, np.random.default_rng([seed, list(CLASSES).index(klass), index]))
+    loop = draw_loop(klass, benchmark_rng(klass, seed, index))
     r = _scan_rows_kept(loop, np.ones(loop.pv.size, bool), "integrating")
     timing = r.evidence["turn_timing"]
     assert timing["reversals_by_law"] >= 3, timing

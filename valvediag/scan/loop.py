@@ -1031,13 +1031,12 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
         ra, rb, rep = max(mine, key=lambda e: (e[1] - e[0]) * e[2].confidence)
         confidence = conf_mean * agreement
         reason = rep.reason
+        # the verdicts' shares of the weight, the largest first
+        votes = ", ".join(f"{v} {100 * w / total:.0f}%" for v, w in
+                          sorted(weights.items(), key=lambda kv: (-kv[1], kv[0] != verdict)))
         if agreement < 0.999:
-            others = ", ".join(f"{v} {100 * w / total:.0f}%" for v, w in
-                               sorted(weights.items(), key=lambda kv: -kv[1]) if v != verdict)
-            reason += f" (episodes disagree: {verdict} {100 * agreement:.0f}%, {others})"
+            reason += f" (episodes disagree: {votes})"
         if pooled_cycles and agreement < POOL_AGREEMENT:
-            votes = ", ".join(f"{v} {100 * w / total:.0f}%" for v, w in
-                              sorted(weights.items(), key=lambda kv: -kv[1]))
             verdict, confidence = "insufficient-data", 0.7
             reason = (f"only {pooled_cycles:.1f} cycles of a {rep.period:.4g} s oscillation over "
                       f"{len(voters)} stretches cut by gaps, fewer than {config.min_cycles:g} "

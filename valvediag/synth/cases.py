@@ -61,7 +61,8 @@ from ..analysis.quality import stored_points, white_noise_std
 from ..models.closedloop import simulate_loop
 from .plant import cycle_stats, exception_deadband, historian_record
 
-__all__ = ["CLASSES", "SynthLoop", "draw_loop", "loop_set", "alternating_steps"]
+__all__ = ["CLASSES", "SynthLoop", "draw_loop", "benchmark_rng", "loop_set",
+           "alternating_steps"]
 
 #: Class -> (truth verdict, process type, whether the fault shows as a limit cycle).
 CLASSES: dict[str, tuple[str, str, bool]] = {
@@ -545,6 +546,32 @@ def _dead_response(rng, h, length, compressed, noise_pct, p):
     p.update(stuck_level=level, kc=kc, ti_s=ti, valve="unknown (no response)",
              period_s=math.nan, cycles=0.0)
     return pv, op, sp, h, p, None
+
+
+def benchmark_rng(klass: str, seed: int, index: int, *more: int) -> np.random.Generator:
+    """The random stream of the realistic benchmark's loop ``index`` of ``klass`` at ``seed``.
+
+    Parameters
+    ----------
+    klass : str
+        A class of :data:`CLASSES`.
+    seed : int
+        The set's seed (``benchmarks/bench_realistic.py``: study, development
+        or held out).
+    index : int
+        The loop's number within its class.
+    *more : int
+        Further entries of the seed, for a stream of the loop's own beside
+        its draw (the benchmark's gaps).
+
+    Returns
+    -------
+    numpy.random.Generator
+        Seeded by ``[seed, position of klass in CLASSES, index, *more]``:
+        ``draw_loop(klass, benchmark_rng(klass, seed, index))`` is the loop
+        the benchmark scans.
+    """
+    return np.random.default_rng([seed, list(CLASSES).index(klass), index, *more])
 
 
 def loop_set(n_per_class: int, seed: int, classes=None) -> list[SynthLoop]:
