@@ -212,6 +212,15 @@ class Problem:
         self.p = B.shape[1]
         self._setups: dict = {}
         self._mats: dict = {}
+        # scores of the candidates already scored, shared by every problem of
+        # the same model (and rest tolerance) on the same data, on which alone
+        # a candidate's score depends: a fit's grid stages from the cold start,
+        # and the point each stage starts from, come back in every fit of the
+        # model from another warm start (a third of the scores, and three fifths
+        # in valvediag.workbench.kind.valve_kind's four sticky fits)
+        self._scores = data._cache.setdefault(
+            ("scores", self.effects, self.process_type, self.drift_knots, self.valve_model,
+             self.rest_tolerance), {})
         self.n_evals = 0
         d = data
         self.sample_set = d.sample_set
@@ -373,15 +382,23 @@ class Problem:
         A batch is scored on all cores (:func:`kernels.score_batch`) in the
         main thread only; in other threads (a scan's pool of loops, which
         already keeps the cores busy) one after the other without the GIL
-        (:func:`kernels.score_serial`). Both give the same numbers.
+        (:func:`kernels.score_serial`). Both give the same numbers. A
+        candidate scored before, by this problem or another of the same model
+        on the same data, is not scored again.
         """
         thetas = list(thetas)
         out = np.empty((len(thetas), 3 + self.p))
+        memo = self._scores
         groups: dict = {}
         for i, th in enumerate(thetas):
-            groups.setdefault(self.group(th), []).append(i)
+            row = memo.get(th)
+            if row is None:
+                groups.setdefault(self.group(th), []).append(i)
+            else:
+                out[i] = row
         d = self.data
         for key, idx in groups.items():
+            # (a candidate twice in one batch is scored twice: the same numbers)
             st = self.setup(thetas[idx[0]])
             P = np.ascontiguousarray(np.array([self.row(thetas[i]) for i in idx]))
             o = np.empty((len(idx), 3 + self.p))
@@ -390,6 +407,8 @@ class Problem:
                st["WT"], st["qW"], self.anchored, st["Py"], st["ystats"], st["G2"], st["Ginv"],
                st["GinvWy"], o)
             out[idx] = o
+            for j, i in enumerate(idx):
+                memo[thetas[i]] = o[j]
             self.n_evals += len(idx)
         return out
 
