@@ -25,8 +25,16 @@ them and scored on the other half. The evidence that matters is
 
 * ``gain``: the share of the linear valve's held-out error that the best
   sticky or loose valve removes. A valve nonlinearity that makes the loop
-  behave as it does removes most of it; a square, triangular or clipped
-  external disturbance, which no valve model explains, removes little;
+  behave as it does removes much of it; a load that wanders at random
+  leaves a band little to mimic. A periodic load in step with the OP, which
+  a band can partly mimic, may remove much too (the disturbed flows and
+  temperatures of the realistic benchmark's study and development seeds
+  whose signature was read removed under 20 % or 78-99 %), so on a
+  self-regulating loop the classifier reads the loads by their own shape
+  first (:func:`~valvediag.analysis.linearity.away_share`,
+  :func:`~valvediag.analysis.linearity.move_onset`). A nonlinearity needs
+  ``SIGNATURE_LIMITS['gain']`` (60 %), or on a self-regulating process a
+  valve with a slip jump ``SIGNATURE_LIMITS['gain_self_regulating']`` (30 %);
 * ``S`` and ``J``: the identified stick band and slip jump [OP unit],
   against the OP's own noise;
 * ``kind_gain``: how much better a valve *with* a slip jump explains the
@@ -72,6 +80,14 @@ __all__ = ["ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_e
 SIGNATURE_LIMITS = {
     # held-out error removed by the nonlinear valve: below this, no valve fault
     "gain": 0.6,
+    # ... or by a valve with a slip jump on a self-regulating process, whose
+    # loads the classifier reads first (a load's steps lead the PV away from
+    # its set point; a load that turns without a step starts the PV's swings
+    # gradually): on the study seeds 10-26 and development seeds 1-2, sticky
+    # flow and temperature cycles that a linear valve behind a long dead time
+    # nearly explains removed 33-58 %, and no disturbed loop whose signature
+    # was read removed between 17 % and 78 %
+    "gain_self_regulating": 0.3,
     # the nonlinear valve must explain this share of the held-out variance ...
     "r2": 0.5,
     # ... and this much more of it than a linear valve does (a valve that a
@@ -370,7 +386,8 @@ class _Candidates:
 
 
 def valve_signature(pv, op, sample_time: float, *, process: str, period: float = math.nan,
-                    max_samples: int = MAX_SAMPLES) -> ValveSignature:
+                    max_samples: int = MAX_SAMPLES,
+                    least_gain: float | None = None) -> ValveSignature:
     """Read the valve's behaviour back from the PV: linear, sticky or loose.
 
     Parameters
@@ -392,6 +409,13 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
         sample wide, and resampling would smear it), unless that stretch holds
         fewer than :data:`SIGNATURE_PERIODS` periods of a known cycle (see
         Notes).
+    least_gain : float, optional
+        Least share of the linear valve's held-out error that a valve
+        nonlinearity must remove [-]. By default ``SIGNATURE_LIMITS['gain']``,
+        and ``SIGNATURE_LIMITS['gain_self_regulating']`` for a valve with a
+        slip jump on a self-regulating process; a caller that has not read the
+        loads' shape (a process type that is only a data test's guess) gives
+        the former.
 
     Returns
     -------
@@ -475,9 +499,9 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
       door that wide hides much of the cycle's shape;
     * the load varies as fast as the loop and in step with the OP (a
       disturbance at the loop's own period with reversals where the OP
-      reverses), which a dead band can partly mimic; the ``gain`` limit
-      guards against this, at the price of missing bands smaller than the
-      OP's noise;
+      reverses), which a dead band can partly mimic: the ``gain`` limit
+      does not guard against it (such loads removed 78-99 % of the linear
+      valve's error), the classifier's readings of the load's shape do;
     * the PV is heavily compressed: a slip shows as a ramp between stored
       points, and a short ``J`` is read as a dead band (``'undecided'`` or
       ``'backlash'``);
@@ -670,20 +694,24 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
             reason=(f"the OP moved over {op_range:.3g} % and the PV did not answer (held-out R2 "
                     f"{r2_lin:.2f} linear, {r2_val:.2f} with a sticky valve)"), **base)
     matters = r2_val - r2_lin >= lim["r2_gain"] or floor <= lim["noise_floor"]
-    if gain < lim["gain"] or r2_val < lim["r2"] or not matters \
+    slip = J >= lim["jump_ratio"] * S and kind_gain >= lim["kind_gain"]
+    if least_gain is None:
+        least_gain = lim["gain_self_regulating"] if process == "self-regulating" and slip \
+            else lim["gain"]
+    if gain < least_gain or r2_val < lim["r2"] or not matters \
             or S < lim["band_over_noise"] * band:
         why = (f"the valve follows the OP: a sticky or loose valve removes {100 * gain:.0f}% of a "
                f"linear valve's held-out error (R2 {r2_lin:.2f} linear, {r2_val:.2f} nonlinear)")
-        if gain >= lim["gain"] and r2_val >= lim["r2"] and not matters:
+        if gain >= least_gain and r2_val >= lim["r2"] and not matters:
             why = (f"a linear valve explains the PV to R2 {r2_lin:.2f}; a sticky or loose valve "
                    f"adds only {r2_val - r2_lin:.3f}: no valve nonlinearity that matters")
-        elif gain >= lim["gain"] and r2_val >= lim["r2"]:
+        elif gain >= least_gain and r2_val >= lim["r2"]:
             why = (f"the band found ({S:.2g}) is within the OP's noise band ({band:.2g}): "
                    "no valve nonlinearity beyond the noise")
         return ValveSignature(verdict="linear", reason=why, **base)
     fig = (f"a {'sticky' if J > 0 else 'loose'} valve explains the PV (removes {100 * gain:.0f}% "
            f"of a linear valve's held-out error; S {S:.2g}, J {J:.2g}, R2 {r2_val:.2f})")
-    if J >= lim["jump_ratio"] * S and kind_gain >= lim["kind_gain"]:
+    if slip:
         return ValveSignature(verdict="stiction", reason=fig + f"; the slip jump removes "
                               f"{100 * kind_gain:.0f}% of a dead band's error", **base)
     if J == 0.0 or kind_gain <= 0.0:

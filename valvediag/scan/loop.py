@@ -857,7 +857,9 @@ def _pooled_cycles(aligned: AlignedLoop, seg_diag, process_type: str, config: Sc
     loop reads ``insufficient-data`` (on the realistic benchmark's study
     seeds 10-16 with three gaps of 10-30 minutes at random places, a sticky
     temperature loop's two stretches of four hours read 51 % a linear valve,
-    49 % a sticky one); the record's clock (:func:`_pooled_clock`) is read
+    49 % a sticky one, where the valve signature asked a sticky valve on a
+    self-regulating loop for a level's 60 % of the linear valve's error); the
+    record's clock (:func:`_pooled_clock`) is read
     over all of them. A stretch that shows a different period holds another
     oscillation and is left out.
     """
