@@ -803,12 +803,7 @@ def _scan_draw(klass, seed, index, process_type):
     from valvediag.synth.cases import benchmark_rng, draw_loop
 
     loop = draw_loop(klass, benchmark_rng(klass, seed, index))
-    t = np.arange(loop.pv.size) * loop.sample_time
-    spec = LoopSpec("X1", "X1.PV", "X1.OP", sp_tag="X1.SP", process_type=process_type,
-                    span=100.0)
-    return analyse_loop(job_for(spec, loop.pv.size, loop.sample_time),
-                        {"pv": frame(t, loop.pv), "op": frame(t, loop.op),
-                         "sp": frame(t, loop.sp)}, ScanConfig(window_hours=24))
+    return _scan_rows_kept(loop, np.ones(loop.pv.size, bool), process_type)
 
 
 @pytest.mark.parametrize("klass, seed, index", [
