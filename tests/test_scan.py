@@ -1069,10 +1069,7 @@ def test_a_levels_turns_against_a_compressed_ops_reversals_placed_by_the_pi_law(
     # levels read backlash by their rounded turns. The PI law fitted to the
     # stored moves places the reversals: the sticky levels' turns come after
     # them, the loose level's before
-    from valvediag.synth.cases import benchmark_rng, draw_loop
-
-    loop = draw_loop(klass, benchmark_rng(klass, seed, index))
-    r = _scan_rows_kept(loop, np.ones(loop.pv.size, bool), "integrating")
+    r = _scan_draw(klass, seed, index, "integrating")
     timing = r.evidence["turn_timing"]
     assert timing["reversals_by_law"] >= 3, timing
     assert r.verdict == verdict, r.reason
