@@ -9,7 +9,8 @@ from valvediag.analysis.bumps import (BUMP_Z, MIN_BUMPS_AGAINST, SCREEN_SHIFT_MA
                                      setpoint_bumps, setpoint_process_screen)
 from valvediag.analysis.classify import classify_loop
 from valvediag.models.closedloop import simulate_loop
-from valvediag.synth.cases import alternating_steps
+from valvediag.analysis.signature import loop_sense
+from valvediag.synth.cases import alternating_steps, benchmark_rng, draw_loop
 
 
 def p_only_level(seed, valve, valve_params=None, sense=1.0, h=5.0, n=17_280, tau=300.0):
@@ -75,16 +76,24 @@ def test_a_sticky_level_valve_holds_through_the_kicks(seed):
 @pytest.mark.parametrize("seed", [0, 2])
 def test_a_tight_level_kept_at_one_sample_a_minute_is_not_read_against_its_kicks(seed):
     """A level that answers its kick in about 40 s, kept at every 60 s: the
-    record's OP shows the kick at one sample and has moved past it at the
-    next, so the integral of the OP reads against the level (at 36-37 of 37
-    steps of these two seeds; where the minute's samples fall against the
-    steps decides it, and seed 1's read none). Such steps are not counted;
-    the same steps at 5 s answer the kick. A sticky valve kept so still
-    holds its kick and is found."""
+    level answers its valve within a sample, and the controller's answer to
+    the noise reads the loop's sense the wrong way round (where the minute's
+    samples fall against the steps decides it: seed 1's reads it right).
+    The OP's kicks give the sense, and every step answers the kick, as at
+    5 s. Read in the wrong sense, the record's OP shows the kick at one
+    sample and has moved past it at the next, and the integral of the OP
+    reads against the level (36-37 of 37 steps): such steps, whose kick has
+    faded two samples on, are not counted either. A sticky valve kept so
+    still holds its kick and is found."""
     pv, op, sp, h = p_only_level(seed, "linear", tau=60.0)
     assert setpoint_bumps(pv, op, sp, h).answered >= 30
-    b = setpoint_bumps(pv[::12], op[::12], sp[::12], 12 * h)
-    assert np.sum(b.z <= -BUMP_Z) >= MIN_BUMPS_AGAINST       # the hazard
+    pv, op, sp, h = pv[::12], op[::12], sp[::12], 12 * h
+    assert loop_sense(pv, op) == -1.0                          # the misreading
+    b = setpoint_bumps(pv, op, sp, h)
+    assert (b.sense, b.sense_source) == (1.0, "the set-point kicks")
+    assert b.answered >= 30 and b.against == 0 and not b.found
+    b = setpoint_bumps(pv, op, sp, h, sense=-1.0)
+    assert np.sum(b.z <= -BUMP_Z) >= MIN_BUMPS_AGAINST       # the hazard of that sense
     assert b.against < MIN_BUMPS_AGAINST and not b.found
     assert np.all(b.held[b.z <= -BUMP_Z] < 0.5)
     pv, op, sp, h = p_only_level(seed, "kano", {"S": 4.0, "J": 2.0}, tau=60.0)
@@ -309,3 +318,19 @@ def test_a_registry_that_names_the_wrong_process_is_doubted():
     # a registry that is right raises no doubt
     d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
     assert "registry_doubt" not in d.evidence and "check the registry" not in d.reason
+
+
+def test_the_setpoint_kicks_give_the_sense_where_the_noise_answer_misreads_it():
+    """A healthy level of the realistic benchmark kept at one sample in 30 s:
+    the level answers its valve within a sample, so the controller's answer to
+    the PV's noise reads the loop's sense the wrong way round and every step
+    went against the OP (``undecided`` before). The OP's kicks at the steps
+    read the sense right, upside down too (a reverse-acting loop)."""
+    loop = draw_loop("level-healthy", benchmark_rng("level-healthy", 10, 2))
+    k = int(round(30.0 / loop.sample_time))
+    pv, op, sp, h = loop.pv[::k], loop.op[::k], loop.sp[::k], k * loop.sample_time
+    assert loop_sense(pv, op) == -1.0          # the misreading this guards against
+    b = setpoint_bumps(pv, op, sp, h)
+    assert (b.sense, b.sense_source) == (1.0, "the set-point kicks")
+    assert b.steps >= MIN_BUMPS_AGAINST and b.against == 0 and not b.found
+    assert setpoint_bumps(100.0 - pv, op, 100.0 - sp, h).sense == -1.0
