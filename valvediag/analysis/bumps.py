@@ -67,8 +67,9 @@ MIN_SIDE = 8
 RESPONSE_WINDOWS = 10.0
 #: Most steps read (the first ones of the record).
 MAX_STEPS = 500
-#: Clear kicks of the OP (beyond :data:`KICK_Z` noise standard deviations),
-#: all the same way against their set-point moves, that give the loop's sense.
+#: Fewest clear kicks of the OP (beyond :data:`KICK_Z` noise standard
+#: deviations) that give the loop's sense, :data:`KICK_SHARE` of them the
+#: same way against their set-point moves.
 MIN_KICKS = 2
 #: Noise standard deviations of the OP by which a kick is clear.
 KICK_Z = 3.0
@@ -261,9 +262,9 @@ def _kicked_sense(sp: np.ndarray, idx: np.ndarray, kick: np.ndarray) -> float:
     before (a ramping OP's trend left out), less that mean; 0 where none
     does. A controller in automatic kicks its OP the way that moves the PV
     towards the new set point: with the set point's move, where the PV rises
-    with the OP. At least :data:`MIN_KICKS` kicks, all the same way, give
-    the sense; fewer, or a mix (a load that stepped with the set point),
-    give 0."""
+    with the OP. At least :data:`MIN_KICKS` kicks, :data:`KICK_SHARE` of
+    them the same way, give the sense; fewer, or a mix (loads that stepped
+    with the set point, a slip's answer within the sample), give 0."""
     if idx.size < MIN_KICKS:
         return 0.0
     dsp = sp[idx] - sp[idx - 1]
