@@ -44,7 +44,7 @@ loops are drawn as before.
 Usage: python benchmarks/bench_realistic.py [--loops N] [--set dev|dev2|heldout|all] [--workers W]
        [--classes C1,C2] [--misses] [--evidence FILE] [--valve-position]
        [--reverse-acting] [--op-door DEV] [--pv-decimals N] [--cascade] [--gaps N]
-       [--seeds A-B]
+       [--export keep:S|average:S] [--units eng|ma|normalised] [--seeds A-B]
 
 ``--valve-position`` gives the scan each loop's valve position as a
 positioner would report it (``SynthLoop.mv``: the simulated position with
@@ -83,6 +83,15 @@ random places out of every loop's record (rows absent from every tag, as a
 collector that was down leaves them). ``--seeds A-B`` draws study seeds
 (not 1-3) instead of the named sets, and prints them all together too: the
 study draws on which hazards of real records are measured.
+
+``--export keep:S`` reads every loop as an export at one sample every ``S``
+seconds holds it (one sample of each block of the record's samples kept),
+``--export average:S`` as one that averages each block (a historian's
+averaged export); a record already that coarse is read as drawn.
+``--units`` reads every loop in other units: ``eng`` the PV and set point
+as ``1000 + 37.3 x`` with no span in the registry, ``ma`` the OP (and the
+position) in mA, ``4 + 0.16 x``, ``normalised`` every tag less its mean
+over its standard deviation (no span). The loops are otherwise the same.
 
 ``--evidence FILE`` writes one JSON line per loop of the development sets:
 its class, index and seed, truth and verdict, what was simulated (valve,
@@ -144,6 +153,46 @@ def _cut_gaps(frames, duration_s: float, gaps: int, rng) -> dict:
     return out
 
 
+def _exported(loop, how: str, every_s: float):
+    """The loop as an export at one sample every ``every_s`` [s] holds it:
+    ``'keep'`` one sample of each block of the record's samples, ``'average'``
+    each block's mean (a historian's averaged export). A record already that
+    coarse is left as it is."""
+    k = max(1, int(round(every_s / loop.sample_time)))
+    if k == 1:
+        return loop
+
+    def thin(x):
+        if x is None:
+            return None
+        if how == "keep":
+            return x[::k].copy()
+        m = x.size // k
+        return x[:m * k].reshape(m, k).mean(axis=1)
+    return dataclasses.replace(loop, pv=thin(loop.pv), op=thin(loop.op), sp=thin(loop.sp),
+                               mv=thin(loop.mv), sample_time=k * loop.sample_time)
+
+
+def _in_units(loop, units: str):
+    """The loop's tags in other units: ``'eng'`` the PV and set point in an
+    engineering unit (``1000 + 37.3 x``), ``'ma'`` the OP and valve position in
+    mA (``4 + 0.16 x``), ``'normalised'`` every tag less its mean over its
+    standard deviation (the set point and position as the PV and OP)."""
+    def lin(x, a, b):
+        return None if x is None else a + b * x
+    if units == "eng":
+        return dataclasses.replace(loop, pv=lin(loop.pv, 1000.0, 37.3),
+                                   sp=lin(loop.sp, 1000.0, 37.3))
+    if units == "ma":
+        return dataclasses.replace(loop, op=lin(loop.op, 4.0, 0.16), mv=lin(loop.mv, 4.0, 0.16))
+    m, sd = float(loop.pv.mean()), float(loop.pv.std())
+    mo, so = float(loop.op.mean()), float(loop.op.std())
+    return dataclasses.replace(loop, pv=lin(loop.pv, -m / sd, 1.0 / sd),
+                               sp=lin(loop.sp, -m / sd, 1.0 / sd),
+                               op=lin(loop.op, -mo / so, 1.0 / so),
+                               mv=lin(loop.mv, -mo / so, 1.0 / so))
+
+
 def _work(args):
     klass, i, seed, with_position, *rest = args
     upside_down = bool(rest and rest[0])
@@ -151,6 +200,8 @@ def _work(args):
     pv_decimals = rest[2] if len(rest) > 2 else None
     cascade = bool(rest[3]) if len(rest) > 3 else False
     gaps = int(rest[4]) if len(rest) > 4 else 0
+    export = rest[5] if len(rest) > 5 else None
+    units = rest[6] if len(rest) > 6 else None
     from valvediag.io.registry import LoopSpec
     from valvediag.scan import LoopJob, ScanConfig, analyse_loop
     from valvediag.synth.cases import benchmark_rng, draw_loop
@@ -161,6 +212,10 @@ def _work(args):
     known = rng.random() < 0.7
     if upside_down:
         loop = dataclasses.replace(loop, pv=100.0 - loop.pv, sp=100.0 - loop.sp)
+    if export is not None:
+        loop = _exported(loop, *export)
+    if units is not None:
+        loop = _in_units(loop, units)
     if op_door > 0:
         loop = dataclasses.replace(loop, op=historian_record(loop.op, op_door))
     if pv_decimals is not None:
@@ -169,7 +224,8 @@ def _work(args):
     position = with_position and loop.mv is not None
     spec = LoopSpec(loop=loop.name, pv_tag="PV", op_tag="OP", sp_tag="SP",
                     mv_tag="MV" if position else None,
-                    process_type=loop.process_type if known else "unknown", span=100.0)
+                    process_type=loop.process_type if known else "unknown",
+                    span=100.0 if units in (None, "ma") else float("nan"))
     end = T0 + dt.timedelta(seconds=loop.duration_s)
     job = LoopJob(spec=spec, start=end - dt.timedelta(hours=24), end=end, problems=())
     frames = _frames(loop, position)
@@ -246,6 +302,13 @@ def main():
     ap.add_argument("--gaps", type=int, default=0, metavar="N",
                     help="cut N gaps of 10-30 minutes at random places out of every loop's "
                          "record (default 0)")
+    ap.add_argument("--export", default="", metavar="keep:S|average:S",
+                    help="read every loop as an export at one sample every S seconds holds it: "
+                         "one sample of each block kept, or each block averaged")
+    ap.add_argument("--units", choices=("eng", "ma", "normalised"),
+                    help="read every loop in other units: the PV in an engineering unit with "
+                         "no span in the registry (eng), the OP in mA (ma), or every tag "
+                         "normalised to zero mean and unit deviation (normalised)")
     ap.add_argument("--seeds", default="", metavar="A-B",
                     help="draw the study seeds A to B (4 loops a class is usual) instead of "
                          "the named sets")
@@ -258,6 +321,15 @@ def main():
     unknown = sorted(set(classes) - set(CLASSES))
     if unknown:
         ap.error(f"unknown class {', '.join(unknown)}; choose from {', '.join(CLASSES)}")
+    export = None
+    if args.export:
+        how, _, every = args.export.partition(":")
+        try:
+            export = (how, float(every))
+        except ValueError:
+            export = None
+        if how not in ("keep", "average") or export is None or not export[1] > 0:
+            ap.error(f"--export takes keep:S or average:S (S seconds), not {args.export!r}")
     out = open(args.evidence, "w") if args.evidence else None
     seeds = dict(SETS) if args.set == "all" else {args.set: SETS[args.set]}
     if args.seeds:
@@ -274,7 +346,8 @@ def main():
     all_rows = []
     for name, seed in seeds.items():
         jobs = [(k, i, seed, args.valve_position, False, args.op_door, args.pv_decimals,
-                 args.cascade, args.gaps) for k in classes for i in range(args.loops)]
+                 args.cascade, args.gaps, export, args.units)
+                for k in classes for i in range(args.loops)]
         t0 = time.perf_counter()
         with ProcessPoolExecutor(max_workers=max(1, args.workers)) as ex:
             rows = list(ex.map(_work, jobs, chunksize=2))
@@ -290,6 +363,11 @@ def main():
             with_mv += ", flows as cascade inner loops"
         if args.gaps:
             with_mv += f", {args.gaps} gaps of 10-30 min cut out"
+        if export is not None:
+            with_mv += (f", exported at {export[1]:g} s "
+                        + ("(a sample kept)" if export[0] == "keep" else "(averaged)"))
+        if args.units:
+            with_mv += f", in units {args.units}"
         _report(rows, f"{name} set (seed {seed}{with_mv}), "
                       f"{time.perf_counter() - t0:.0f} s wall", details)
         if args.reverse_acting:
