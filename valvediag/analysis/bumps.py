@@ -395,7 +395,7 @@ def setpoint_bumps(pv, op, sp, sample_time: float, *, sense: float | None = None
     t_half = step_half_time(pv, sp, steps, after, noise)
     if math.isfinite(t_half):
         half = max(MIN_SIDE, min(half, int(round(RESPONSE_WINDOWS * t_half))))
-    idx, gain, se, kick, held, peaks = [], [], [], [], [], []
+    idx, gain, se, kick, held, first_moves = [], [], [], [], [], []
     kick_clear = KICK_Z * math.sqrt(2.0) * resolved_noise_std(op)
     for k, p, q in zip(steps[:MAX_STEPS], before, after):
         lo, hi = max(0, k - half, p + 1), min(pv.size, k + half, q)
@@ -423,7 +423,7 @@ def setpoint_bumps(pv, op, sp, sample_time: float, *, sense: float | None = None
         # the loop's answer to a slip or to the kick may move it back next
         moves = np.diff(op[k - 2:k + 2]) - (op[k - 2] - op[k - 5]) / 3.0
         clear = np.flatnonzero(np.abs(moves) > kick_clear)
-        peaks.append(float(moves[clear[0]]) if clear.size else 0.0)
+        first_moves.append(float(moves[clear[0]]) if clear.size else 0.0)
         held.append(float(np.mean(op[at + 2:at + 4]) - op0) / peak
                     if peak != 0 and at + 2 < op.size else math.nan)
     idx, gain, se, kick, held = (np.asarray(idx, int), np.asarray(gain), np.asarray(se),
@@ -431,7 +431,7 @@ def setpoint_bumps(pv, op, sp, sample_time: float, *, sense: float | None = None
     z = gain / se if idx.size else np.zeros(0)
     source = "given"
     if sense is None:
-        sense, source = _kicked_sense(sp, idx, np.asarray(peaks)), "the set-point kicks"
+        sense, source = _kicked_sense(sp, idx, np.asarray(first_moves)), "the set-point kicks"
         if sense == 0:
             sense, source = loop_sense(pv, op), "the controller's answer to the noise"
         if sense == 0 and idx.size:
