@@ -177,6 +177,48 @@ def test_thresholds(method, lo, hi):
     assert bi_verdict(2.0, method, thresholds=(1.0, 1.9)) == "backlash"
 
 
+def average_export(f, n, h, t0=0.37, sub=200):
+    """``n`` samples of ``f`` as an average export records them: each the
+    mean of ``f`` over the sample time ``h`` that ends at its time stamp."""
+    tf = t0 + (np.arange(n * sub) + 0.5) / sub * h
+    return f(tf).reshape(n, sub).mean(axis=1)
+
+
+@pytest.mark.parametrize("w", [0.0, 0.3, 2.0])
+@pytest.mark.parametrize("tau", [-3.2, -0.4, 0.0, 0.2, 1.7])
+def test_the_averaged_corner_is_the_mean_of_the_corner_over_its_sample(w, tau):
+    from valvediag.analysis.bi import _corner_basis
+
+    u = tau + np.linspace(-0.5, 0.5, 200001)
+    corner, tail = _corner_basis(tau, w, 1.0)
+    # the trapezoid rule's error on a grid of 1/200000 sample is below 1e-6
+    assert corner == pytest.approx(np.trapezoid(-(np.sqrt(u * u + w * w) - w), u), abs=1e-6)
+    assert tail == pytest.approx(np.trapezoid(np.where(u > 0, u * u, 0.0), u), abs=1e-6)
+
+
+def test_an_average_export_of_a_triangle_reads_stiction_when_its_averaging_is_given():
+    # 12.4 samples a period: averaging over the sample rounds each sharp turn
+    # over one sample, which read as sampled is a valve turning over 8 % of
+    # the period
+    h, P = 1.0, 12.4
+    pv = average_export(lambda t: triangle(t, P), 400, h)
+    assert backlash_index(pv, h).verdict == "backlash"
+    r = backlash_index(pv, h, averaging_time=h)
+    assert r.bi == pytest.approx(1.0, abs=0.02)
+    assert r.verdict == "stiction" and r.averaging_time == h
+
+
+@pytest.mark.parametrize("P,w_share", [(14.3, 0.03), (20.3, 0.02)])
+def test_an_average_export_of_a_rounded_turn_reads_as_the_turn_sampled(P, w_share):
+    h = 1.0
+    wave = lambda t: hyperbolic_wave(t, P, w_share * P)
+    sampled = backlash_index(wave(np.arange(600) * h + 0.37), h)
+    averaged = backlash_index(average_export(wave, 600, h), h, averaging_time=h)
+    assert averaged.verdict == sampled.verdict == "backlash"
+    assert averaged.bi == pytest.approx(sampled.bi, rel=0.02)
+    assert averaged.rounding == pytest.approx(w_share, rel=0.3)   # grid of widths ~30 % apart
+
+
 def test_too_few_cycles_is_insufficient_data():
     t = np.arange(300) * 1.0
     r = backlash_index(triangle(t, 250.0), 1.0)
@@ -193,6 +235,12 @@ def test_too_few_cycles_is_insufficient_data():
 def test_bad_input(pv, kw, match):
     with pytest.raises(ValueError, match=match):
         backlash_index(pv, 1.0, **kw)
+
+
+@pytest.mark.parametrize("averaging_time", [-1.0, np.nan, np.inf])
+def test_bad_averaging_time(averaging_time):
+    with pytest.raises(ValueError, match="averaging_time"):
+        backlash_index(np.sin(np.arange(200) / 5), 1.0, averaging_time=averaging_time)
 
 
 def test_bad_time():

@@ -224,8 +224,33 @@ def _hyp(tau, w):
     return -(np.sqrt(tau * tau + w * w) - w)
 
 
+@numba.njit(cache=True, inline="always")
+def _hyp_integral(t, w):
+    """Antiderivative of :func:`_hyp` in ``t`` (0 at ``t = 0``)."""
+    if w > 0.0:
+        q = np.sqrt(t * t + w * w)
+        return w * t - 0.5 * (t * q + w * w * np.arcsinh(t / w))
+    return -0.5 * t * abs(t)
+
+
+@numba.njit(cache=True, inline="always")
+def _corner_basis(tau, w, box):
+    """The corner's and the tail's terms of :func:`_fit_one` at ``tau``
+    [samples], averaged over ``box`` samples centred on it (0: the value at
+    ``tau``)."""
+    if box > 0.0:
+        lo = tau - 0.5 * box
+        hi = tau + 0.5 * box
+        f2 = (_hyp_integral(hi, w) - _hyp_integral(lo, w)) / box
+        lo3 = lo if lo > 0.0 else 0.0
+        hi3 = hi if hi > 0.0 else 0.0
+        f3 = (hi3 * hi3 * hi3 - lo3 * lo3 * lo3) / (3.0 * box)
+        return f2, f3
+    return _hyp(tau, w), (tau * tau if tau > 0.0 else 0.0)
+
+
 @numba.njit(cache=True, nogil=True)
-def _fit_one(y, k, s, qb, qa, sh, w, A, r, tail):
+def _fit_one(y, k, s, qb, qa, sh, w, A, r, tail, box=0.0):
     """Least squares of the apex model to ``s * y[k-qb : k+qa+1]``::
 
         y0 + m tau - b (sqrt(tau^2 + w^2) - w) + c tau^2 [tau > 0]
@@ -236,13 +261,15 @@ def _fit_one(y, k, s, qb, qa, sh, w, A, r, tail):
     would let it cancel the rounding on one side, which no valve does. ``A`` (4, 4) and ``r``
     (4,) are work arrays; ``r`` returns (y0, m, b, c). Without ``tail`` the
     last term is left out (c = 0). Returns the residual sum of squares, inf
-    when singular."""
-    szz = _apex_sums(y, k, s, qb, qa, sh, w, A, r)
+    when singular. With ``box`` > 0 every sample is the model's mean over
+    ``box`` samples centred on it, as a historian's average export records
+    it."""
+    szz = _apex_sums(y, k, s, qb, qa, sh, w, A, r, box)
     return _apex_solve(A, r, szz, tail)
 
 
 @numba.njit(cache=True, nogil=True)
-def _apex_sums(y, k, s, qb, qa, sh, w, A, r):
+def _apex_sums(y, k, s, qb, qa, sh, w, A, r, box=0.0):
     """Normal equations of :func:`_fit_one` into ``A`` (lower triangle) and
     ``r``; returns the sum of squares of the data."""
     for i in range(4):
@@ -255,8 +282,7 @@ def _apex_sums(y, k, s, qb, qa, sh, w, A, r):
         z = s * y[k + j]
         f0 = 1.0
         f1 = tau
-        f2 = _hyp(tau, w)
-        f3 = tau * tau if tau > 0.0 else 0.0
+        f2, f3 = _corner_basis(tau, w, box)
         A[0, 0] += 1.0
         A[1, 0] += f1
         A[1, 1] += f1 * f1
@@ -292,7 +318,7 @@ def _apex_solve(A, r, szz, tail):
 
 
 @numba.njit(cache=True, nogil=True)
-def _fit_apices_both(y, ai, asg, qbs, qas, wgrid, reach):
+def _fit_apices_both(y, ai, asg, qbs, qas, wgrid, reach, box=0.0):
     """Fit the apex model, without and with the tail term (index 0 and 1),
     around every apex for every rounding width, over ``qbs[a]`` samples
     before and ``qas[a]`` after the centre of apex ``a``.
@@ -332,7 +358,7 @@ def _fit_apices_both(y, ai, asg, qbs, qas, wgrid, reach):
             bsh[1] = 0.0
             for si in range(ngrid):
                 sh = -reach + 0.5 * si
-                szz = _apex_sums(y, k, s, qb, qa, sh, w, A0, r0)
+                szz = _apex_sums(y, k, s, qb, qa, sh, w, A0, r0, box)
                 for t in range(2):
                     A[:, :] = A0
                     r[:] = r0
@@ -347,7 +373,7 @@ def _fit_apices_both(y, ai, asg, qbs, qas, wgrid, reach):
                 for _ in range(5):
                     centre = bsh[t]
                     for sh in (centre - step, centre + step):
-                        v = _fit_one(y, k, s, qb, qa, sh, w, A, r, tail)
+                        v = _fit_one(y, k, s, qb, qa, sh, w, A, r, tail, box)
                         if v < best[t]:
                             best[t] = v
                             bsh[t] = sh
@@ -355,7 +381,7 @@ def _fit_apices_both(y, ai, asg, qbs, qas, wgrid, reach):
                     step *= 0.5
                 if not best[t] < np.inf:
                     # no finite fit: what the final fit leaves, as a one-model fit would
-                    best[t] = _fit_one(y, k, s, qb, qa, bsh[t], w, A, r, tail)
+                    best[t] = _fit_one(y, k, s, qb, qa, bsh[t], w, A, r, tail, box)
                     rb[t, :] = r
                 rss[t, a, wi] = best[t]
                 par[t, a, wi, 0] = bsh[t]
@@ -418,10 +444,13 @@ def _model_apex(y0, m, b, c, w, lo, hi):
 
 
 @numba.njit(cache=True, nogil=True)
-def robust_bi_kernel(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
+def robust_bi_kernel(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION, box=0.0):
     """Robust BI. ``w_grid`` holds the rounding widths searched [fraction of
     the period]. Returns (bi, period, a_pp, w_rel, apex_idx, apex_sign,
-    theta_peak, apex_pos, mid_idx, theta_mid, apex_par, w_samples, decim)."""
+    theta_peak, apex_pos, mid_idx, theta_mid, apex_par, w_samples, decim).
+    ``box`` > 0 reads every sample as the mean of the PV over ``box``
+    samples centred on it (a historian's average export) and fits the
+    corner before the averaging."""
     y, ai, asg, P, dur, band = segment_cycles(x, period_hint, True)
     empty_f = np.empty(0)
     empty_i = np.empty(0, dtype=np.int64)
@@ -504,7 +533,8 @@ def robust_bi_kernel(x, period_hint, nref, w_grid, after_frac=AFTER_FRACTION):
     best_bic = np.inf
     wbest = 0
     par = np.empty((0, 0, 0))
-    rss_b, par_b = _fit_apices_both(yd, ai, asg, qbs, qas, wgrid, reach)
+    # an average over `box` record samples spans box / r working samples
+    rss_b, par_b = _fit_apices_both(yd, ai, asg, qbs, qas, wgrid, reach, box / r)
     for tail in (False, True):
         rss_t = rss_b[1 if tail else 0]
         par_t = par_b[1 if tail else 0]
@@ -649,6 +679,10 @@ class BacklashIndex:
         Sample index of each apex that ``theta_peak`` measures (peaks and
         valleys interleaved); None when they are ``peaks`` and ``valleys``
         in time order (see :attr:`apex_indices`).
+    averaging_time : float
+        Time over which each sample averaged the PV [s]; 0 for values at
+        their time stamps. Where it is not 0, ``rounding`` and ``theta_peak``
+        are those of the PV before the averaging.
     """
 
     bi: float
@@ -670,6 +704,7 @@ class BacklashIndex:
     pv: np.ndarray = field(repr=False)
     sample_time: float = 1.0
     apex_index: np.ndarray = field(default=None, repr=False)
+    averaging_time: float = 0.0
     _apex_fit: np.ndarray = field(default=None, repr=False)
     _fit_width: float = field(default=np.nan, repr=False)
     _decimation: int = field(default=1, repr=False)
@@ -762,7 +797,7 @@ def _check_time(pv, sample_time, time):
 
 
 def backlash_index(pv, sample_time=None, *, time=None, method: str = "robust",
-                   thresholds=None) -> BacklashIndex:
+                   thresholds=None, averaging_time: float = 0.0) -> BacklashIndex:
     """Backlash Index of an oscillating PV (Farenzena & Trierweiler 2012).
 
     Parameters
@@ -778,6 +813,13 @@ def backlash_index(pv, sample_time=None, *, time=None, method: str = "robust",
         Estimator, see the module documentation.
     thresholds : tuple of float, optional
         ``(stiction_max, backlash_min)``; default :data:`THRESHOLDS`.
+    averaging_time : float, default 0
+        Time over which each sample is the mean of the PV [s, the unit of
+        ``sample_time``]: the sample time for a historian's average (or
+        time-weighted average) export, 0 for values at their time stamps
+        (snapshots, interpolated or recorded values). The robust method then
+        fits each corner as averaged and reads the corner before the
+        averaging; the paper's method ignores it.
 
     Returns
     -------
@@ -801,6 +843,14 @@ def backlash_index(pv, sample_time=None, *, time=None, method: str = "robust",
     per period the apex shape is lost and the BI drifts towards stiction
     (Table 3 of the paper shows the same trend).
 
+    An average over the sample time rounds a sharp corner as a slope that
+    turns at a constant rate over one sample: from a sampled record it
+    cannot be told from a dead band that a valve crosses within a sample.
+    Read as sampled, averaged records of a sticky valve read backlash below
+    about 30 samples per period; read as averaged, sampled records of a
+    loose valve read stiction there. The export's kind must therefore be
+    given (``averaging_time``); the data do not tell it.
+
     Examples
     --------
     >>> import numpy as np
@@ -823,6 +873,9 @@ def backlash_index(pv, sample_time=None, *, time=None, method: str = "robust",
     if np.ptp(x) == 0:
         raise ValueError("pv is constant: there is no oscillation to analyse")
     h = _check_time(x, sample_time, time)
+    averaging_time = float(averaging_time)
+    if not (0.0 <= averaging_time < np.inf):
+        raise ValueError(f"averaging_time must be finite and at least 0, not {averaging_time:g}")
     thr = tuple(thresholds) if thresholds is not None else THRESHOLDS[method]
     x = np.ascontiguousarray(x)
     hint, _ = acf_period(linear_detrend(x)) if method == "robust" else (0.0, 0.0)
@@ -836,7 +889,7 @@ def backlash_index(pv, sample_time=None, *, time=None, method: str = "robust",
         apos = ai.astype(float)
     else:
         (bi, P, app, rounding, ai, asg, thp, apos, mid, thm, apar, wfit,
-         decim) = robust_bi_kernel(x, hint, NREF, W_GRID)
+         decim) = robust_bi_kernel(x, hint, NREF, W_GRID, AFTER_FRACTION, averaging_time / h)
     cycles = max(0.0, (ai.size - 1) / 2.0)
     reason = ""
     if not np.isfinite(P) or ai.size < 3 or thp.size == 0 or not np.any(np.isfinite(thp)) \
@@ -859,7 +912,7 @@ def backlash_index(pv, sample_time=None, *, time=None, method: str = "robust",
         bi_per_cycle=per_cycle, cycles=cycles, period=float(P) * h,
         amplitude=float(app) / 2 if np.isfinite(app) else np.nan,
         rounding=float(rounding), reason=reason, pv=x, sample_time=h,
-        apex_index=ai.copy(), _apex_fit=apar, _fit_width=float(wfit), _decimation=int(decim))
+        apex_index=ai.copy(), averaging_time=averaging_time, _apex_fit=apar, _fit_width=float(wfit), _decimation=int(decim))
 
 
 #: Turn durations and lags searched by :func:`lagged_turns` [fraction of the period].
