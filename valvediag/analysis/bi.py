@@ -912,7 +912,8 @@ def backlash_index(pv, sample_time=None, *, time=None, method: str = "robust",
         bi_per_cycle=per_cycle, cycles=cycles, period=float(P) * h,
         amplitude=float(app) / 2 if np.isfinite(app) else np.nan,
         rounding=float(rounding), reason=reason, pv=x, sample_time=h,
-        apex_index=ai.copy(), averaging_time=averaging_time, _apex_fit=apar, _fit_width=float(wfit), _decimation=int(decim))
+        apex_index=ai.copy(), averaging_time=averaging_time, _apex_fit=apar,
+        _fit_width=float(wfit), _decimation=int(decim))
 
 
 #: Turn durations and lags searched by :func:`lagged_turns` [fraction of the period].
