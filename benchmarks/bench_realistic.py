@@ -87,7 +87,8 @@ study draws on which hazards of real records are measured.
 ``--export keep:S`` reads every loop as an export at one sample every ``S``
 seconds holds it (one sample of each block of the record's samples kept),
 ``--export average:S`` as one that averages each block (a historian's
-averaged export); a record already that coarse is read as drawn.
+averaged export), with the registry's ``sampling`` saying so; a record
+already that coarse is read as drawn.
 ``--units`` reads every loop in other units: ``eng`` the PV and set point
 as ``1000 + 37.3 x`` with no span in the registry, ``ma`` the OP (and the
 position) in mA, ``4 + 0.16 x``, ``normalised`` every tag less its mean
@@ -157,10 +158,11 @@ def _exported(loop, how: str, every_s: float):
     """The loop as an export at one sample every ``every_s`` [s] holds it:
     ``'keep'`` one sample of each block of the record's samples, ``'average'``
     each block's mean (a historian's averaged export). A record already that
-    coarse is left as it is."""
+    coarse is left as it is. Returns the loop and whether its samples are
+    averages (the registry's ``sampling``)."""
     k = max(1, int(round(every_s / loop.sample_time)))
     if k == 1:
-        return loop
+        return loop, False
 
     def thin(x):
         if x is None:
@@ -169,8 +171,9 @@ def _exported(loop, how: str, every_s: float):
             return x[::k].copy()
         m = x.size // k
         return x[:m * k].reshape(m, k).mean(axis=1)
-    return dataclasses.replace(loop, pv=thin(loop.pv), op=thin(loop.op), sp=thin(loop.sp),
-                               mv=thin(loop.mv), sample_time=k * loop.sample_time)
+    thinned = dataclasses.replace(loop, pv=thin(loop.pv), op=thin(loop.op), sp=thin(loop.sp),
+                                  mv=thin(loop.mv), sample_time=k * loop.sample_time)
+    return thinned, how == "average"
 
 
 def _in_units(loop, units: str):
@@ -212,8 +215,9 @@ def _work(args):
     known = rng.random() < 0.7
     if upside_down:
         loop = dataclasses.replace(loop, pv=100.0 - loop.pv, sp=100.0 - loop.sp)
+    averaged = False
     if export is not None:
-        loop = _exported(loop, *export)
+        loop, averaged = _exported(loop, *export)
     if units is not None:
         loop = _in_units(loop, units)
     if op_door > 0:
@@ -225,7 +229,8 @@ def _work(args):
     spec = LoopSpec(loop=loop.name, pv_tag="PV", op_tag="OP", sp_tag="SP",
                     mv_tag="MV" if position else None,
                     process_type=loop.process_type if known else "unknown",
-                    span=100.0 if units in (None, "ma") else float("nan"))
+                    span=100.0 if units in (None, "ma") else float("nan"),
+                    sampling="average" if averaged else "point")
     end = T0 + dt.timedelta(seconds=loop.duration_s)
     job = LoopJob(spec=spec, start=end - dt.timedelta(hours=24), end=end, problems=())
     frames = _frames(loop, position)

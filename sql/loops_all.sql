@@ -1,4 +1,4 @@
-SELECT loop, pv_tag, op_tag, sp_tag, mv_tag, mode_tag, process_type, unit, span,
-       criticality, description, issues
+-- Every column: a store opened read-only that was made before loops.sampling lacks it.
+SELECT *
 FROM loops
 ORDER BY loop

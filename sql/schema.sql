@@ -63,8 +63,11 @@ CREATE TABLE IF NOT EXISTS loops (
     span          DOUBLE,
     criticality   DOUBLE  NOT NULL DEFAULT 1.0,
     description   VARCHAR,
-    issues        VARCHAR[]
+    issues        VARCHAR[],
+    sampling      VARCHAR DEFAULT 'point'
 );
+-- A store made before loops.sampling gets it; its loops read as 'point', as they were.
+ALTER TABLE loops ADD COLUMN IF NOT EXISTS sampling VARCHAR DEFAULT 'point';
 
 -- One row per scan. Runs 'complete' or 'partial' (every step ran, but some export could not
 -- be read or stored nothing: note names them) count as history. 'aborted': the scan's

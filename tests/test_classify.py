@@ -797,3 +797,29 @@ def test_a_period_seen_for_less_than_a_cycle_is_a_drift_not_a_cycle_cut_short(
     op = 40 + rng.normal(0, 0.1, 8640)
     d = classify.classify_loop(pv, op, sample_time=10.0, process_type="integrating")
     assert d.verdict == verdict, d.reason
+
+
+@pytest.mark.parametrize("klass, seed, index", [
+    ("level-stiction-cycle", 11, 2),     # 1 s, averaged over each 30 s
+    ("level-stiction-sawtooth", 11, 1),  # 2 s, a 2 h snapshot
+    ("level-backlash-cycle", 10, 1),
+])
+def test_an_average_export_is_read_as_averaged_where_the_registry_says_so(klass, seed, index):
+    # a historian's average over 30 s rounds a sticky level's sharp turns
+    # over a sample; read as values at their time stamps, that is a dead
+    # band, and the sticky valves read backlash
+    loop, pv, op, sp = _study_record(klass, seed, index)
+    k = int(round(30.0 / loop.sample_time))
+    m = pv.size // k
+    pv, op, sp = (x[:m * k].reshape(m, k).mean(axis=1) for x in (pv, op, sp))
+    kw = dict(sample_time=k * loop.sample_time, process_type="integrating")
+    as_values = classify_loop(pv, op, sp, **kw)
+    as_averages = classify_loop(pv, op, sp, pv_averaged=True, **kw)
+    assert as_averages.verdict == loop.truth, as_averages.reason
+    assert as_averages.evidence["bi_averaging_s"] == kw["sample_time"]
+    assert "bi_averaging_s" not in as_values.evidence
+    if loop.truth == "stiction":
+        assert as_values.verdict == "backlash"
+        assert as_averages.bi < as_values.bi - 1.0
+    else:
+        assert as_averages.bi == pytest.approx(as_values.bi, rel=0.02)

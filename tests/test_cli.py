@@ -69,6 +69,22 @@ def test_bi_exits_2_when_no_file_could_be_read(loop_files, tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)[0]["verdict"] == "insufficient-data"
 
 
+def test_bi_reads_an_average_export_as_averaged_where_told(loop_files, tmp_path, capsys):
+    # the sticky loop (period 154 s) as an export of 12 s averages: each
+    # turn rounded over a sample reads as a dead band unless the CLI is told
+    rows = np.loadtxt(loop_files["sticky"], delimiter=",", skiprows=1)
+    m = rows.shape[0] // 6
+    blocks = rows[:m * 6].reshape(m, 6, 3).mean(axis=1)
+    blocks[:, 0] = 12.0 * np.arange(m)
+    path = tmp_path / "averaged.csv"
+    np.savetxt(path, blocks, delimiter=",", header="timestamp,pv,op", comments="", fmt="%.6f")
+    assert main(["bi", "--json", str(path)]) == 0
+    assert json.loads(capsys.readouterr().out)[0]["verdict"] == "backlash"
+    assert main(["bi", "--json", "--sampling", "average", str(path)]) == 0
+    row = json.loads(capsys.readouterr().out)[0]
+    assert row["verdict"] == "stiction" and row["bi"] < 1.2
+
+
 def test_bi_table_and_paper_method(loop_files, capsys):
     assert main(["bi", "--method", "paper", str(loop_files["sticky"])]) == 0
     out = capsys.readouterr().out

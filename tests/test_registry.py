@@ -57,6 +57,18 @@ def test_a_level_or_a_flow_named_by_its_kind_is_read_as_its_process_type(tmp_pat
     assert "invalid process_type 'pressure'" in problems[0] and "level or flow" in problems[0]
 
 
+def test_the_sampling_of_an_export_is_read_in_the_words_historians_use(tmp_path):
+    path = write(tmp_path, "loop,pv_tag,op_tag,sampling\n"
+                           "A,A.PV,A.OP,\nB,B.PV,B.OP,Average\nC,C.PV,C.OP,time weighted\n"
+                           "D,D.PV,D.OP,interpolated\nE,E.PV,E.OP,hourly\n")
+    loops, problems = read_loops_csv(path)
+    assert [l.sampling for l in loops] == ["point", "average", "average", "point", "point"]
+    assert len(problems) == 1 and "(loop E)" in problems[0]
+    assert "invalid sampling 'hourly'" in problems[0] and "point or average" in problems[0]
+    assert loops[4].issues == ("invalid sampling 'hourly' (expected point or average); "
+                               "using 'point'",)
+
+
 def test_duplicate_loop_name_keeps_the_first_and_reports():
     loops, problems = read_loops_csv(DATA / "loops.csv")
     assert [l.loop for l in loops] == ["FIC101", "LIC200", "TIC300", "PIC400"]

@@ -188,6 +188,11 @@ def test_plain_words_for_a_planner(loops):
     assert "assumed to be integrating" in " ".join(explain(sticky))
     rep = LoopHistory("LIC1", status="repeat", first_reported=T0, open_runs=4)
     assert "first reported on 2026-01-01; 4 runs" in " ".join(explain(stiction, rep))
+    # turns read as a historian's averages say so
+    assert "averages the measurement" not in words
+    averaged = dataclasses.replace(stiction, evidence={**(stiction.evidence or {}),
+                                                       "bi_averaging_s": 30.0})
+    assert "averages the measurement over each 30 s sample" in " ".join(explain(averaged))
 
 
 def test_plain_words_for_a_swing_that_keeps_a_clock(loops):

@@ -129,6 +129,22 @@ def test_loops_round_trip(store):
     assert [l.loop for l in store.loops()] == ["FIC101"]
 
 
+def test_a_store_made_before_the_sampling_column_reads_its_loops_as_point_values(tmp_path):
+    db = tmp_path / "old.duckdb"
+    averaged = LoopSpec("LIC200", pv_tag="LIC200.PV", op_tag="LIC200.OP", sampling="average")
+    with Store(db) as store:
+        store.replace_loops([LOOP, averaged])
+        assert [l.sampling for l in store.loops()] == ["point", "average"]
+        store.con.execute("ALTER TABLE loops DROP COLUMN sampling")   # as an older store
+    with Store(db, read_only=True) as store:                         # not brought up to date
+        assert [(l.loop, l.sampling) for l in store.loops()] == [("FIC101", "point"),
+                                                                 ("LIC200", "point")]
+    with Store(db) as store:                                          # brought up to date
+        assert [l.sampling for l in store.loops()] == ["point", "point"]
+        store.replace_loops([averaged])
+        assert store.loops() == [averaged]
+
+
 # --- runs and results -------------------------------------------------------------
 def _verdict(loop, verdict, rank=1, **kw):
     return {"loop": loop, "verdict": verdict, "rank": rank, "confidence": 0.8, **kw}

@@ -958,11 +958,18 @@ def turn_bi(duration: float) -> float:
     return 1.0 / (1.0 - T / (4.0 * d)) if T <= 2.0 * d else T / d
 
 
-def _lagged_turn(t: np.ndarray, T: float, tau: float) -> np.ndarray:
+def _lagged_turn(t: np.ndarray, T: float, tau: float, box: int = 1) -> np.ndarray:
     """A unit slope change spread over ``T`` starting at ``t = 0``, through a lag ``tau``.
 
     ``t`` is a uniform grid starting before the turn (where the lag is at rest).
+    With ``box`` > 1 each point is the mean over ``box`` grid steps centred
+    on it (a historian's average export).
     """
+    if box > 1:
+        lead = (box - 1) // 2
+        te = t[0] + (t[1] - t[0]) * (np.arange(t.size + box - 1) - lead)
+        c = np.cumsum(np.r_[0.0, _lagged_turn(te, T, tau)])
+        return (c[box:] - c[:-box]) / box
     if T > 0:
         C = np.where(t < 0, 0.0, np.where(t <= T, -t * t / (2.0 * T), -(t - 0.5 * T)))
     else:
@@ -1075,7 +1082,9 @@ def lagged_turns(bres: BacklashIndex) -> LaggedTurns | None:
     do 1 of its 20 loose level valves and 1 of the 18 loose valves of the
     synthetic plants the scan's tests use, which have no lag at all. The
     result is therefore evidence that a BI reading of backlash may be a
-    lag's, not a verdict.
+    lag's, not a verdict. A record whose samples average the PV over their
+    sample time (``bres.averaging_time``) is fitted with the turns so
+    averaged.
 
     References
     ----------
@@ -1110,6 +1119,7 @@ def lagged_turns(bres: BacklashIndex) -> LaggedTurns | None:
     lo, hi = -int(0.25 * Pd) * m, int(0.1 * Pd) * m              # turn starts [fine steps]
     starts = np.arange(lo, hi + 1, _START_STRIDE)
     pad = int(np.ceil(0.6 * Pd)) * m
+    box = max(1, int(round(bres.averaging_time / h / dec * m)))   # [fine steps]
     first = -q * m - hi - pad
     fine = (first + np.arange(2 * q * m - lo + hi + pad + 1)) * (1.0 / (Pd * m))
     idx = (np.arange(-q, q + 1) * m)[None, :] - starts[:, None] - first   # (start, window)
@@ -1118,7 +1128,7 @@ def lagged_turns(bres: BacklashIndex) -> LaggedTurns | None:
     cols = np.arange(ai.size)
     for i, T in enumerate(TURN_GRID):
         for j, tau in enumerate(LAG_GRID):
-            B = _lagged_turn(fine, T, tau)[idx]                          # (start, window)
+            B = _lagged_turn(fine, T, tau, box)[idx]                     # (start, window)
             Bc = B - (B @ X0p.T) @ X0.T                                   # turn less its line
             cc = np.einsum("ij,ij->i", Bc, Bc)
             cy = Bc @ Y                                                  # (start, apices)

@@ -593,7 +593,7 @@ def _oscillates(osc: Oscillation) -> bool:
 
 def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "unknown",
                   method: str = "robust", min_cycles: float = 3.0,
-                  pv_compressed: bool = False, mv=None,
+                  pv_compressed: bool = False, pv_averaged: bool = False, mv=None,
                   record_s: float | None = None, drawn=None) -> LoopDiagnosis:
     """Classify one control loop from its recorded PV and OP.
 
@@ -630,6 +630,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         (:class:`~valvediag.analysis.quality.DataQuality`'s ``compressed``):
         a level's kinks are not read from it (the straight lines drawn
         between stored points kink every bend).
+    pv_averaged : bool
+        Each PV sample is the mean over its sample time (a historian's
+        average export, the registry's ``sampling``), not the value at its
+        time stamp. The Backlash Index then reads each turn as averaged
+        (its ``averaging_time``): averaging alone rounds a sharp turn over a
+        sample, which read as a value would be a dead band.
     mv : array_like, shape (n,), optional
         Recorded valve position, same sampling [% of travel]; NaN where
         missing. Read against the OP by
@@ -1188,7 +1194,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             process_screen=pscreen, shape=shape, **common)
     if sinusoidal and not valve_faulty:
         return sinusoid()
-    bres = backlash_index(x, h, method=method)
+    bres = backlash_index(x, h, method=method, averaging_time=h if pv_averaged else 0.0)
     def finite_mean(a):
         a = np.asarray(a, dtype=float)
         a = a[np.isfinite(a)]
@@ -1197,6 +1203,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     ev.update(bi=bres.bi, theta_peak_mean=finite_mean(bres.theta_peak),
               theta_middle_mean=finite_mean(bres.theta_middle), rounding=bres.rounding,
               bi_thresholds=list(bres.thresholds))
+    if bres.averaging_time > 0:
+        ev["bi_averaging_s"] = bres.averaging_time     # turns read as averaged over a sample
     if bres.verdict == "insufficient-data":
         if valve_faulty:
             return travel_verdict(process_screen=pscreen, shape=shape, backlash=bres, **common)

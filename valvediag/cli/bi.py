@@ -34,6 +34,11 @@ def register(sub):
                    default="integrating",
                    help="process type of the loop(s) (default integrating; 'unknown' runs a "
                         "data test)")
+    p.add_argument("--sampling", choices=("point", "average"), default="point",
+                   help="what each PV sample is: 'point', its value at the time stamp "
+                        "(default), or 'average', its mean over the sample time (a "
+                        "historian's average export, whose averaging would otherwise read "
+                        "as backlash)")
     p.add_argument("--min-cycles", type=float, default=3.0,
                    help="fewest oscillation cycles for a verdict on the valve (default 3)")
     for role in ("timestamp", "pv", "op", "sp", "mv"):
@@ -44,12 +49,13 @@ def register(sub):
 
 
 def classify_file(path, *, method="robust", process_type="integrating", min_cycles=3.0,
-                  columns=None) -> dict:
+                  columns=None, sampling="point") -> dict:
     """Verdict for one file as the JSON object of ``valvediag bi --json``."""
-    return _classify(path, method, process_type, min_cycles, columns)[0]
+    return _classify(path, method, process_type, min_cycles, columns, sampling)[0]
 
 
-def _classify(path, method, process_type, min_cycles, columns) -> tuple[dict, bool]:
+def _classify(path, method, process_type, min_cycles, columns,
+              sampling="point") -> tuple[dict, bool]:
     """:func:`classify_file`'s row, and whether the file could be read."""
     try:
         rec, meta = read_loop_csv(path, columns=columns)
@@ -57,7 +63,8 @@ def _classify(path, method, process_type, min_cycles, columns) -> tuple[dict, bo
         return {"file": str(path), "verdict": "insufficient-data", "bi": None, "cycles": 0,
                 "period_s": None, "confidence": None, "reason": str(exc)}, False
     d = classify_loop(rec.pv, rec.op, rec.sp, sample_time=rec.sample_time,
-                      process_type=process_type, method=method, min_cycles=min_cycles, mv=rec.mv)
+                      process_type=process_type, method=method, min_cycles=min_cycles, mv=rec.mv,
+                      pv_averaged=sampling == "average")
     reason = d.reason
     if meta["non_numeric"]:
         reason += "; non-numeric values ignored: " + ", ".join(f"{k} {v}" for k, v in meta["non_numeric"].items())
@@ -68,8 +75,8 @@ def _classify(path, method, process_type, min_cycles, columns) -> tuple[dict, bo
 def run(args) -> int:
     columns = {r: getattr(args, f"{r}_column") for r in ("timestamp", "pv", "op", "sp", "mv")
                if getattr(args, f"{r}_column")}
-    done = [_classify(f, args.method, args.process_type, args.min_cycles, columns or None)
-            for f in args.files]
+    done = [_classify(f, args.method, args.process_type, args.min_cycles, columns or None,
+                      args.sampling) for f in args.files]
     rows = [row for row, _ in done]
     # every file unreadable: nothing was analysed, which must not exit 0
     status = 0 if any(read for _, read in done) else 2

@@ -69,7 +69,7 @@ def register(sub):
                         "quoted globs ('**' recursive)")
     p.add_argument("--loops", required=True, metavar="LOOPS_CSV",
                    help="loop registry: loop,pv_tag,op_tag,sp_tag,mv_tag,process_type,unit,"
-                        "span,criticality,description")
+                        "span,criticality,description,sampling")
     p.add_argument("--db", required=True, metavar="PATH",
                    help="DuckDB store, created when missing (one process may write it at a time)")
     p.add_argument("--out", required=True, metavar="DIR",

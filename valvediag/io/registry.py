@@ -10,6 +10,8 @@ Columns (header names are case-insensitive; aliases in brackets)::
     process_type                    integrating | self-regulating | unknown
                                     (level: integrating; flow: self-regulating)
     unit, span, criticality, description          optional
+    sampling                        point | average: what each PV sample is
+                                    (default point)
 
 :func:`read_loops_csv` never drops a loop silently. A loop without a PV (or OP)
 tag is returned with an ``issues`` entry (``"no PV tag in loops.csv"``) so the
@@ -23,6 +25,13 @@ Notes
 * ``span`` is the PV span in engineering units [PV unit]. Empty means "derive
   from the data later" (NaN). It must be positive when given.
 * ``criticality`` is a dimensionless weight >= 0 for ranking (default 1.0).
+* ``sampling`` says what the export's PV samples are: ``point``, the PV's
+  value at the time stamp (a snapshot, interpolated or recorded export; the
+  default), or ``average``, its mean over the sample time (a historian's
+  average or time-weighted average export). An average rounds a sharp turn
+  over one sample, which the Backlash Index would read as a dead band; the
+  data cannot tell the two kinds apart, so the registry says which
+  (:data:`SAMPLING_ALIASES` lists the other words read).
 * A row with more fields than the header is skipped (its fields cannot be
   attributed to columns) and reported. A row whose loop name repeats an
   earlier one is skipped and reported; the first row wins.
@@ -39,7 +48,7 @@ from pathlib import Path
 from ..plain import printable
 
 __all__ = ["LoopSpec", "RegistryError", "read_loops_csv", "PROCESS_TYPES",
-           "PROCESS_TYPE_ALIASES", "ROLES"]
+           "PROCESS_TYPE_ALIASES", "ROLES", "SAMPLINGS", "SAMPLING_ALIASES"]
 
 PROCESS_TYPES = ("integrating", "self-regulating", "unknown")
 #: Process types written as the loop's kind, read as the type they name: a
@@ -51,6 +60,14 @@ PROCESS_TYPE_ALIASES = {"level": "integrating", "integrator": "integrating",
                         "flow": "self-regulating", "self-regulated": "self-regulating",
                         "selfregulating": "self-regulating",
                         "non-integrating": "self-regulating", "": "unknown"}
+#: What an export's PV samples are: the value at the time stamp, or the mean
+#: over the sample time.
+SAMPLINGS = ("point", "average")
+#: Other words for them, as historians' export dialogs name them.
+SAMPLING_ALIASES = {"": "point", "snapshot": "point", "sampled": "point",
+                    "interpolated": "point", "recorded": "point", "raw": "point",
+                    "averaged": "average", "mean": "average", "time-weighted": "average",
+                    "time-weighted-average": "average", "twa": "average"}
 #: Signal roles of a loop, in the order ``LoopSpec.tags`` lists them.
 ROLES = ("pv", "op", "sp", "mv", "mode")
 #: Longest description kept [characters]; a longer one is shortened, with a problem line.
@@ -68,6 +85,7 @@ _COLUMNS = {
     "span": ("span",),
     "criticality": ("criticality",),
     "description": ("description",),
+    "sampling": ("sampling",),
 }
 _REQUIRED = ("loop", "pv_tag", "op_tag")
 
@@ -99,6 +117,9 @@ class LoopSpec:
         Ranking weight [-], default 1.0.
     description : str
         Free text.
+    sampling : str
+        ``point`` or ``average``: whether each PV sample of the exports is
+        the value at its time stamp or the mean over the sample time.
     issues : tuple of str
         Problems that limit what the scan can do for this loop, e.g.
         ``"no PV tag in loops.csv"``. Empty when the row is fine.
@@ -115,6 +136,7 @@ class LoopSpec:
     span: float = math.nan
     criticality: float = 1.0
     description: str = ""
+    sampling: str = "point"
     issues: tuple[str, ...] = ()
 
     @property
@@ -225,6 +247,13 @@ def _row_to_spec(row: dict[str, str], where: str) -> tuple[LoopSpec, list[str]]:
         note(f"invalid criticality {row.get('criticality')!r} (must be >= 0); using 1.0")
         crit = 1.0
 
+    raw_sampling = row.get("sampling", "")
+    sampling = raw_sampling.strip().lower().replace("_", "-").replace(" ", "-")
+    sampling = SAMPLING_ALIASES.get(sampling, sampling)
+    if sampling not in SAMPLINGS:
+        note(f"invalid sampling {raw_sampling!r} (expected point or average); using 'point'")
+        sampling = "point"
+
     description = row.get("description", "")
     if len(description) > DESCRIPTION_MAX:
         note(f"description of {len(description):,} characters shortened to "
@@ -233,7 +262,7 @@ def _row_to_spec(row: dict[str, str], where: str) -> tuple[LoopSpec, list[str]]:
     spec = LoopSpec(loop=row["loop"], pv_tag=tags["pv"], op_tag=tags["op"], sp_tag=tags["sp"],
                     mv_tag=tags["mv"], mode_tag=tags["mode"], process_type=ptype,
                     unit=row.get("unit") or None, span=span, criticality=crit,
-                    description=description, issues=tuple(issues))
+                    description=description, sampling=sampling, issues=tuple(issues))
     return spec, problems
 
 

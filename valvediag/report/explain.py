@@ -211,6 +211,15 @@ def _how(r) -> str | None:
 
 
 def _how_shape(r) -> str | None:
+    how = _how_turns(r)
+    avg = (r.evidence or {}).get("bi_averaging_s")
+    if how and r.verdict in ("stiction", "backlash", "undecided") and _finite(avg) and avg > 0:
+        how += (f" The export averages the measurement over each {avg:g} s sample (loops.csv), "
+                f"which rounds every turn a little; the turns were read as so averaged.")
+    return how
+
+
+def _how_turns(r) -> str | None:
     ev = r.evidence or {}
     lo, hi = (ev.get("bi_thresholds") or [math.nan, math.nan])[:2]
     if r.verdict == "stiction" and _finite(r.bi):

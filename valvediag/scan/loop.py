@@ -258,13 +258,15 @@ def _record_s(aligned: AlignedLoop) -> float:
     return (segs[-1][1] - segs[0][0]) * aligned.sample_time if segs else 0.0
 
 
-def _classify(aligned, a, b, process_type, config, compressed=False) -> LoopDiagnosis:
+def _classify(aligned, a, b, process_type, config, compressed=False,
+              averaged=False) -> LoopDiagnosis:
     sp = aligned.sp[a:b] if aligned.sp is not None else None
     mv = aligned.mv[a:b] if aligned.mv is not None else None
     drawn = aligned.bridged[a:b] if aligned.bridged is not None else None
     return classify_loop(aligned.pv[a:b], aligned.op[a:b], sp, sample_time=aligned.sample_time,
                          process_type=process_type, method=config.method,
-                         min_cycles=config.min_cycles, pv_compressed=compressed, mv=mv,
+                         min_cycles=config.min_cycles, pv_compressed=compressed,
+                         pv_averaged=averaged, mv=mv,
                          record_s=_record_s(aligned), drawn=drawn)
 
 
@@ -297,10 +299,10 @@ def _is_intermittent(d: LoopDiagnosis, min_cycles: float) -> bool:
             and osc.periodic_fraction <= PERIODIC_FRACTION_MIN)
 
 
-def _segment_episodes(aligned, a, b, process_type, config, compressed=False
+def _segment_episodes(aligned, a, b, process_type, config, compressed=False, averaged=False
                       ) -> tuple[LoopDiagnosis, list[tuple[int, int, LoopDiagnosis]]]:
     """Classify one segment; return its diagnosis and its episodes (start, stop, diagnosis)."""
-    d = _classify(aligned, a, b, process_type, config, compressed)
+    d = _classify(aligned, a, b, process_type, config, compressed, averaged)
     whole = _is_episode(d, config.min_cycles)
     if not (whole or _is_intermittent(d, config.min_cycles)):
         return d, []
@@ -317,7 +319,7 @@ def _segment_episodes(aligned, a, b, process_type, config, compressed=False
     for ra, rb in runs:
         if (rb - ra) * h < config.min_cycles * d.period:
             continue
-        sub = _classify(aligned, a + ra, a + rb, process_type, config, compressed)
+        sub = _classify(aligned, a + ra, a + rb, process_type, config, compressed, averaged)
         if _is_episode(sub, config.min_cycles):
             out.append((a + ra, a + rb, sub))
     if d.evidence.get("from_events") and not any(e[2].verdict in VALVE_FAULTS for e in out):
@@ -818,7 +820,7 @@ def _pooled_rests(seg_diag, process_type: str):
 
 
 def _pooled_cycles(aligned: AlignedLoop, seg_diag, process_type: str, config: ScanConfig,
-                   compressed: bool = False) -> tuple[list, float]:
+                   compressed: bool = False, averaged: bool = False) -> tuple[list, float]:
     """Episodes of a cycle that gaps cut into stretches too short to show it alone.
 
     Parameters
@@ -828,7 +830,10 @@ def _pooled_cycles(aligned: AlignedLoop, seg_diag, process_type: str, config: Sc
         Each stretch's diagnosis at the scan's ``min_cycles``.
     process_type : str
     config : ScanConfig
-    compressed : bool
+    compressed, averaged : bool
+        The PV was stored compressed; each PV sample is a mean over its
+        sample time (:func:`~valvediag.analysis.classify.classify_loop`'s
+        ``pv_compressed`` and ``pv_averaged``).
 
     Returns
     -------
@@ -877,7 +882,7 @@ def _pooled_cycles(aligned: AlignedLoop, seg_diag, process_type: str, config: Sc
     relaxed = dataclasses.replace(config, min_cycles=POOL_MIN_CYCLES)
     out = []
     for a, b, _ in agree:
-        d = _classify(aligned, a, b, process_type, relaxed, compressed)
+        d = _classify(aligned, a, b, process_type, relaxed, compressed, averaged)
         if d.verdict in EPISODE_VERDICTS:
             out.append((a, b, d))
     if len(out) < 2:
@@ -1002,8 +1007,10 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
 
     seg_diag: list[tuple[int, int, LoopDiagnosis]] = []
     episodes: list[tuple[int, int, LoopDiagnosis]] = []
+    averaged = spec.sampling == "average"   # each PV sample a mean over its sample time
     for a, b in segs:
-        d, eps = _segment_episodes(aligned, a, b, spec.process_type, config, q.compressed)
+        d, eps = _segment_episodes(aligned, a, b, spec.process_type, config, q.compressed,
+                                   averaged)
         seg_diag.append((a, b, d))
         episodes.extend(eps)
 
@@ -1013,7 +1020,7 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
     if len(segs) > 1 and not any(e[2].verdict != "insufficient-data" for e in episodes):
         # a cycle that gaps cut into stretches of too few cycles each
         read, pooled_cycles = _pooled_cycles(aligned, seg_diag, spec.process_type, config,
-                                             q.compressed)
+                                             q.compressed, averaged)
         if read:
             episodes = read
             ev["pooled_cycles"] = {"stretches": len(read), "cycles": round(pooled_cycles, 2)}

@@ -515,7 +515,8 @@ class Store:
                     "sp_tag": pl.String, "mv_tag": pl.String, "mode_tag": pl.String,
                     "process_type": pl.String, "unit": pl.String, "span": pl.Float64,
                     "criticality": pl.Float64, "description": pl.String,
-                    "issues": pl.List(pl.String)}).with_columns(pl.col("span").fill_nan(None))
+                    "sampling": pl.String, "issues": pl.List(pl.String)},
+        ).with_columns(pl.col("span").fill_nan(None))
         with self.transaction(), self._registered("incoming_loops", frame):
             self._run("loops_delete")
             self._run("loops_insert")
@@ -528,6 +529,7 @@ class Store:
             row["issues"] = tuple(row["issues"] or ())
             row["span"] = math.nan if row["span"] is None else row["span"]
             row["description"] = row["description"] or ""
+            row["sampling"] = row.get("sampling") or "point"
             out.append(LoopSpec(**row))
         return out
 
