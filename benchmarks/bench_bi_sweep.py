@@ -13,7 +13,14 @@ class (``undecided`` counts as wrong).
 The robust thresholds were calibrated on another seed (101); this sweep uses
 seed 0.
 
+``--export average`` records every sample as the mean over its sample time
+(a historian's average export) and tells the classifier so
+(``pv_averaged``); ``--export average-untold`` reads the same records as
+values at their time stamps, as the scan does without ``sampling = average``
+in ``loops.csv``.
+
 Usage: python benchmarks/bench_bi_sweep.py [--loops N] [--workers W]
+       [--export point|average|average-untold]
 """
 from __future__ import annotations
 
@@ -30,7 +37,7 @@ KINDS = ("stiction", "backlash", "linear")
 
 
 def _work(args):
-    kind, n, seed, cycles = args
+    kind, n, seed, cycles, averaged, told = args
     from valvediag import classify_loop
     from valvediag.paper.scenarios import draw_cases, record
 
@@ -41,14 +48,15 @@ def _work(args):
         rng = np.random.default_rng(seed * 1000 + i)
         for spp in SPP:
             for nz in NOISE:
-                pv, op, h = record(c, spp, nz, rng)
+                pv, op, h = record(c, spp, nz, rng, averaged=averaged)
                 for method in ("robust", "paper"):
                     d = classify_loop(pv, op, sample_time=h, process_type="integrating",
-                                      method=method)
+                                      method=method, pv_averaged=told)
                     out.append((spp, nz, method, d.verdict == c.truth))
                 # the literal estimator alone, as the paper uses it: no screening
                 try:
-                    v = backlash_index(pv, h, method="paper").verdict
+                    v = backlash_index(pv, h, method="paper",
+                                       averaging_time=h if told else 0.0).verdict
                 except ValueError:
                     v = "insufficient-data"
                 out.append((spp, nz, "literal", v == c.truth))
@@ -60,7 +68,13 @@ def main():
     ap.add_argument("--loops", type=int, default=100, help="loops per class (default 100)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--export", choices=("point", "average", "average-untold"), default="point",
+                    help="record each sample as the value at its time stamp (default), or as "
+                         "the mean over its sample time, read as such ('average') or as "
+                         "values ('average-untold')")
     args = ap.parse_args()
+    averaged = args.export != "point"
+    told = args.export == "average"
     t0 = time.perf_counter()
     # split each class into chunks so that the workers stay busy
     chunks = []
@@ -70,7 +84,7 @@ def main():
         j = 0
         while done < args.loops:
             n = min(per, args.loops - done)
-            chunks.append((kind, n, args.seed * 100 + k * 10 + j, 20.0))
+            chunks.append((kind, n, args.seed * 100 + k * 10 + j, 20.0, averaged, told))
             done += n
             j += 1
     res = {kind: [] for kind in KINDS}
@@ -79,7 +93,7 @@ def main():
             res[kind].extend(out)
     secs = time.perf_counter() - t0
     print(f"BI sweep: {args.loops} loops per class ({', '.join(KINDS)}), "
-          f"{os.cpu_count()} cores, {secs:.0f} s")
+          f"{os.cpu_count()} cores, {secs:.0f} s, export: {args.export}")
     print("% correct (verdict = true class); columns: robust | paper")
     head = f"{'spp':>5s} {'noise':>6s} | " + " | ".join(f"{k[:9]:>9s} r/p" for k in KINDS) + " |   mix r/p"
     print(head)

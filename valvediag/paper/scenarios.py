@@ -184,7 +184,7 @@ def draw_cases(kind: str, n: int, *, seed: int = 0, cycles: float = 12.0) -> lis
 
 
 def record(case: LoopCase, samples_per_period: float | None, noise_pct: float,
-           rng: np.random.Generator):
+           rng: np.random.Generator, averaged: bool = False):
     """Record a case as a historian would: resample and add PV noise.
 
     Parameters
@@ -200,6 +200,10 @@ def record(case: LoopCase, samples_per_period: float | None, noise_pct: float,
         White PV noise, standard deviation as a percentage of the oscillation
         amplitude [%].
     rng : numpy.random.Generator
+    averaged : bool, default False
+        Record each sample as the mean of the PV and OP over the sample time
+        that ends at it (a historian's average export), not their values at
+        its time stamp.
 
     Returns
     -------
@@ -214,7 +218,15 @@ def record(case: LoopCase, samples_per_period: float | None, noise_pct: float,
     else:
         h = case.period / samples_per_period * rng.uniform(0.97, 1.03)
         tn = np.arange(rng.uniform(0, h), t[-1], h)
-        pv = np.interp(tn, t, case.pv)
-        op = np.interp(tn, t, case.op)
+        if averaged:
+            tn = tn[tn >= h]
+
+            def mean(x):   # over (tn - h, tn], the trapezoid rule on the fine record
+                c = np.r_[0.0, np.cumsum(0.5 * (x[1:] + x[:-1]) * FINE_STEP)]
+                return (np.interp(tn, t, c) - np.interp(tn - h, t, c)) / h
+            pv, op = mean(case.pv), mean(case.op)
+        else:
+            pv = np.interp(tn, t, case.pv)
+            op = np.interp(tn, t, case.op)
     noise = rng.normal(0.0, noise_pct / 100.0 * case.amplitude, pv.size)
     return pv + noise, op + case.params["kc"] * noise, h
