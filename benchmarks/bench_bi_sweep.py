@@ -55,8 +55,7 @@ def _work(args):
                     out.append((spp, nz, method, d.verdict == c.truth))
                 # the literal estimator alone, as the paper uses it: no screening
                 try:
-                    v = backlash_index(pv, h, method="paper",
-                                       averaging_time=h if told else 0.0).verdict
+                    v = backlash_index(pv, h, method="paper").verdict
                 except ValueError:
                     v = "insufficient-data"
                 out.append((spp, nz, "literal", v == c.truth))

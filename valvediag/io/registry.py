@@ -214,6 +214,13 @@ def _number(text: str, default: float) -> tuple[float, bool]:
     return x, math.isfinite(x)
 
 
+def _named(text: str, aliases: dict[str, str]) -> str:
+    """A word of the file in its canonical spelling: lower case, words joined
+    by hyphens, an alias read as the word it stands for."""
+    word = text.strip().lower().replace("_", "-").replace(" ", "-")
+    return aliases.get(word, word)
+
+
 def _row_to_spec(row: dict[str, str], where: str) -> tuple[LoopSpec, list[str]]:
     """Build a LoopSpec; return it with the problems found (each naming ``where``)."""
     issues, problems = [], []
@@ -231,8 +238,7 @@ def _row_to_spec(row: dict[str, str], where: str) -> tuple[LoopSpec, list[str]]:
         note(f"PV and OP are the same tag {tags['pv']!r}")
 
     raw_type = row.get("process_type", "")
-    ptype = raw_type.strip().lower().replace("_", "-").replace(" ", "-")
-    ptype = PROCESS_TYPE_ALIASES.get(ptype, ptype)
+    ptype = _named(raw_type, PROCESS_TYPE_ALIASES)
     if ptype not in PROCESS_TYPES:
         note(f"invalid process_type {raw_type!r} (expected one of {', '.join(PROCESS_TYPES)}, "
              f"or level or flow); using 'unknown'")
@@ -248,8 +254,7 @@ def _row_to_spec(row: dict[str, str], where: str) -> tuple[LoopSpec, list[str]]:
         crit = 1.0
 
     raw_sampling = row.get("sampling", "")
-    sampling = raw_sampling.strip().lower().replace("_", "-").replace(" ", "-")
-    sampling = SAMPLING_ALIASES.get(sampling, sampling)
+    sampling = _named(raw_sampling, SAMPLING_ALIASES)
     if sampling not in SAMPLINGS:
         note(f"invalid sampling {raw_sampling!r} (expected point or average); using 'point'")
         sampling = "point"
