@@ -111,6 +111,19 @@ def test_lags_agree_within_the_factor_and_not_beyond():
     assert not lags_agree(0.0, 20.0) and not lags_agree(20.0, float("nan"))
 
 
+def test_lags_within_a_sample_of_each_other_agree():
+    """Two sub-sample lags read at 5 s (3.2 s at the turns, 5.0 s with the
+    sticky valve: a ratio beyond the factor) cannot be told apart; a
+    difference larger than the sample, or a lag that is not a number, still
+    disagrees."""
+    from valvediag.scan.loop import LAG_AGREEMENT, lags_agree
+
+    assert 5.0 / 3.2 > LAG_AGREEMENT and not lags_agree(5.0, 3.2)
+    assert lags_agree(5.0, 3.2, resolution=5.0) and lags_agree(0.0, 3.2, resolution=5.0)
+    assert not lags_agree(31.0, 20.0, resolution=5.0)
+    assert not lags_agree(float("nan"), 3.2, resolution=5.0)
+
+
 def test_the_scan_names_a_slip_behind_a_lag_by_the_turns_timing():
     """A sticky valve (S 4, J 4) behind a 20 s lag: the Backlash Index reads a
     dead band, but the level turns after the OP's reversals, which the scan

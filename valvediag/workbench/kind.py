@@ -111,6 +111,8 @@ class ValveKind:
         standard errors, positive where the sticky valve is better [-].
     segments : int
         Held-out segments compared.
+    sample_time : float
+        Of the record fitted [s]: the lags are resolved to about this.
     stiction_fit, deadband_fit : ModelFit or None
         The two fits (None when the record cannot be modelled).
     """
@@ -125,6 +127,7 @@ class ValveKind:
     gain: float = math.nan
     t: float = math.nan
     segments: int = 0
+    sample_time: float = math.nan
     stiction_fit: ModelFit | None = field(default=None, repr=False)
     deadband_fit: ModelFit | None = field(default=None, repr=False)
 
@@ -136,7 +139,8 @@ class ValveKind:
         return {"kind": self.kind, "S": num(self.S), "J": num(self.J), "DB": num(self.DB),
                 "lag_stiction_s": num(self.lag_stiction),
                 "lag_deadband_s": num(self.lag_deadband), "gain": num(self.gain),
-                "t": num(self.t), "segments": int(self.segments), "reason": self.reason}
+                "t": num(self.t), "segments": int(self.segments),
+                "sample_time_s": num(self.sample_time), "reason": self.reason}
 
     def plot(self, ax=None):
         """The measured PV with the sticky valve's model, the dead band's drawn for comparison.
@@ -252,4 +256,5 @@ def valve_kind(pv, op, sample_time, *, process_type: str = "integrating", sp=Non
     return ValveKind(kind="stiction" if slips else "backlash", reason=reason, S=S, J=J,
                      DB=float(db.params["DB"]), lag_stiction=float(st.params["lag"]),
                      lag_deadband=float(db.params["lag"]), gain=float(gain), t=float(t),
-                     segments=int(cmp.segments), stiction_fit=st, deadband_fit=db)
+                     segments=int(cmp.segments), sample_time=float(sample_time),
+                     stiction_fit=st, deadband_fit=db)
