@@ -302,6 +302,26 @@ def test_lagged_turns_find_the_sharp_turn_behind_a_lag():
     assert len(ax.lines) == 3
 
 
+def test_a_turn_within_a_sample_is_sharp_behind_its_lag():
+    """A turn fitted at 0.016 periods (Backlash Index 1.68, above the
+    paper's 1.5) is 0.4 of a sample of a cycle of 234 s sampled every 10 s:
+    the record cannot show it from a slip. Sampled every second, it is
+    four samples long and not sharp; a lag beyond 5 % of the period is no
+    short lag either way."""
+    from valvediag.analysis.bi import LaggedTurns, turn_bi
+    from valvediag.analysis.classify import LAG_SHARP_BI, sharp_behind_lag
+
+    def turns(h, lag=6.9):
+        return LaggedTurns(duration=0.016, lag=lag, duration_without_lag=0.04,
+                           bi=turn_bi(0.016), bi_without_lag=turn_bi(0.04), sse=1.0,
+                           sse_without_lag=2.0, apices=20, period=234.0, sample_time=h)
+
+    assert turn_bi(0.016) > LAG_SHARP_BI
+    assert sharp_behind_lag(turns(10.0)) and not sharp_behind_lag(turns(1.0))
+    assert not sharp_behind_lag(turns(10.0, lag=0.06 * 234.0))
+    assert not sharp_behind_lag(None)
+
+
 @pytest.mark.parametrize("kc,ti", [(2.0, 300.0), (1.5, 250.0)])
 def test_a_lag_behind_a_sticky_valve_puts_a_doubt_on_the_backlash_index(kc, ti):
     from valvediag import classify_loop

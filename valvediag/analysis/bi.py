@@ -1002,6 +1002,8 @@ class LaggedTurns:
         Apices pooled.
     period : float
         [s]
+    sample_time : float
+        Of the record whose apices were fitted [s].
     t, shape, fit, fit_without_lag : numpy.ndarray
         Time about the apex [periods], the mean apex (peaks and
         sign-flipped valleys, in peak-to-peak units) and the two fits'
@@ -1017,6 +1019,7 @@ class LaggedTurns:
     sse_without_lag: float
     apices: int
     period: float
+    sample_time: float = math.nan
     t: np.ndarray = field(default=None, repr=False)
     shape: np.ndarray = field(default=None, repr=False)
     fit: np.ndarray = field(default=None, repr=False)
@@ -1148,5 +1151,6 @@ def lagged_turns(bres: BacklashIndex) -> LaggedTurns | None:
                        duration_without_lag=float(TURN_GRID[i0]), bi=turn_bi(TURN_GRID[ib]),
                        bi_without_lag=turn_bi(TURN_GRID[i0]), sse=float(sse[ib, jb]),
                        sse_without_lag=float(sse[i0, 0]), apices=int(ai.size),
-                       period=float(bres.period), t=t, shape=Y.mean(axis=1),
+                       period=float(bres.period), sample_time=float(h), t=t,
+                       shape=Y.mean(axis=1),
                        fit=mean_fit(ib, jb), fit_without_lag=mean_fit(i0, 0))
