@@ -180,16 +180,21 @@ def _in_units(loop, units: str):
     """The loop's tags in other units: ``'eng'`` the PV and set point in an
     engineering unit (``1000 + 37.3 x``), ``'ma'`` the OP and valve position in
     mA (``4 + 0.16 x``), ``'normalised'`` every tag less its mean over its
-    standard deviation (the set point and position as the PV and OP)."""
+    standard deviation (the set point and position as the PV and OP; a tag
+    that never moves, as a dead response's PV may not, less its mean only)."""
     def lin(x, a, b):
         return None if x is None else a + b * x
+
+    def scale(x):
+        sd = float(x.std())
+        return float(x.mean()), sd if sd > 0 else 1.0
+
     if units == "eng":
         return dataclasses.replace(loop, pv=lin(loop.pv, 1000.0, 37.3),
                                    sp=lin(loop.sp, 1000.0, 37.3))
     if units == "ma":
         return dataclasses.replace(loop, op=lin(loop.op, 4.0, 0.16), mv=lin(loop.mv, 4.0, 0.16))
-    m, sd = float(loop.pv.mean()), float(loop.pv.std())
-    mo, so = float(loop.op.mean()), float(loop.op.std())
+    (m, sd), (mo, so) = scale(loop.pv), scale(loop.op)
     return dataclasses.replace(loop, pv=lin(loop.pv, -m / sd, 1.0 / sd),
                                sp=lin(loop.sp, -m / sd, 1.0 / sd),
                                op=lin(loop.op, -mo / so, 1.0 / so),
