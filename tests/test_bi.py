@@ -302,6 +302,23 @@ def test_lagged_turns_find_the_sharp_turn_behind_a_lag():
     assert len(ax.lines) == 3
 
 
+def test_lagged_turns_read_a_cycle_of_16_samples():
+    """A sharp triangle of 160 s behind a 6.5 s lag, sampled every 10 s (16
+    samples a period, 0.5 % noise): the index reads backlash, and the turns'
+    windows of seven samples find the lag and the sharp turn behind it."""
+    from valvediag.analysis.bi import lagged_turns
+    from valvediag.analysis.classify import sharp_behind_lag
+
+    hf, P, tau = 0.5, 160.0, 6.5
+    x = _lagged(triangle(np.arange(43200) * hf, P), hf, tau)[::20]
+    x = x + np.random.default_rng(0).normal(0, 0.005 * np.ptp(x), x.size)
+    r = backlash_index(x, 10.0)
+    assert r.verdict == "backlash" and r.bi > 4
+    turns = lagged_turns(r)
+    assert turns is not None and turns.lag == pytest.approx(tau, rel=0.3)
+    assert turns.bi <= 1.5 and sharp_behind_lag(turns)
+
+
 def test_a_turn_within_a_sample_is_sharp_behind_its_lag():
     """A turn fitted at 0.016 periods (Backlash Index 1.68, above the
     paper's 1.5) is 0.4 of a sample of a cycle of 234 s sampled every 10 s:

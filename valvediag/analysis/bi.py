@@ -1058,7 +1058,8 @@ def lagged_turns(bres: BacklashIndex) -> LaggedTurns | None:
     Returns
     -------
     LaggedTurns or None
-        None when fewer than three apices have a full window.
+        None when fewer than three apices have a full window, or a window
+        holds fewer than seven samples (under 12.5 samples a period).
 
     Notes
     -----
@@ -1089,6 +1090,14 @@ def lagged_turns(bres: BacklashIndex) -> LaggedTurns | None:
     sample time (``bres.averaging_time``) is fitted with the turns so
     averaged.
 
+    Each apex's window fits four numbers of its own (``a, m, b, t0``), so
+    it needs more samples than that: seven, ``LAG_HALF`` of a period either
+    side at 15 samples a period, leave three to the shared ``T`` and
+    ``tau`` (pooled over the apices, a record of a few hours at 15-20
+    samples a period holds tens of them). A sticky level cycle sampled at
+    16 samples a period read backlash (BI 5.9) with no lag fitted when nine
+    samples were asked for, and a slip behind a 6.5 s lag with seven.
+
     References
     ----------
     .. [1] Farenzena, M., Trierweiler, J. O. (2012), see the module docstring.
@@ -1109,7 +1118,7 @@ def lagged_turns(bres: BacklashIndex) -> LaggedTurns | None:
     offs = np.arange(-q, q + 1) * dec
     inside = (ai + offs[0] >= 0) & (ai + offs[-1] < x.size)
     ai, sg = ai[inside], sg[inside]
-    if ai.size < 3 or q < 4:
+    if ai.size < 3 or q < 3:
         return None
     t = np.arange(-q, q + 1) / Pd
     X0 = np.c_[np.ones(t.size), t]
