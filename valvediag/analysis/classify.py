@@ -210,10 +210,11 @@ def sharp_behind_lag(turns) -> bool:
     10 s, behind a 7 s lag) read a turn of 0.016 periods, 0.4 of a sample,
     whose Backlash Index (1.68) is above the limit. A turn that takes no
     longer than a sample is sharp as far as the record can show. On the
-    realistic benchmark's study seeds 10-26 (4 loops a class) and
-    development seeds 1-2 (20 a class), level classes, this put two sticky
-    valves' backlash readings in doubt (a sawtooth sampled every 10 s then
-    read stiction by the loop model) and no loose valve's.
+    realistic benchmark's level classes (study seeds 10-16, 4 loops a
+    class; development seeds 1-2, 20 a class) and its level cycle classes
+    (study seeds 17-26, 4 a class), this put two sticky valves' backlash
+    readings in doubt (a sawtooth sampled every 10 s then read stiction by
+    the loop model) and no loose valve's.
     """
     if turns is None or not turns.lag <= LAG_MAX_SHARE * turns.period:
         return False
