@@ -1153,8 +1153,8 @@ def _analyse_loop(job: LoopJob, frames: Mapping[str, pl.DataFrame],
         # rounded turns that are also a slip's behind a short lag: the loop
         # model, with the lag fitted, says whether the valve slips
         kind = lag_checked_kind(aligned, ra, rb, period=rep.period, lag=turns["lag_s"])
-        agree = lags_agree(kind.lag_stiction, turns["lag_s"],
-                           resolution=max(h, np.nan_to_num(kind.sample_time)))
+        # the model is fitted at a multiple of the record's step: the coarser of the two
+        agree = lags_agree(kind.lag_stiction, turns["lag_s"], resolution=kind.sample_time)
         ev["valve_kind"] = dict(kind.as_dict(), lags_agree=agree)
         if kind.kind == "stiction" and agree:
             verdict = "stiction"
