@@ -17,8 +17,8 @@ counts the steps at which the level moved *against* the OP by more than the
 noise allows: no valve that follows its OP does that. The steps the level
 answered give the valve's gain, and :func:`kinks_over_following` checks a
 level's kinks (:func:`~valvediag.analysis.signature.stick_slip_events`)
-against it: a slip steps the slope by far more than the OP's last move makes
-through that gain.
+against it: a slip steps the slope by far more than the OP's change across it
+makes through that gain.
 
 References
 ----------
@@ -615,8 +615,9 @@ def setpoint_process_screen(pv, op, sp, sample_time: float) -> SetPointScreen:
 
 
 #: A slip steps a level's slope by at least this multiple of what the OP's
-#: travel before it makes through the valve's gain read at the set-point steps.
-SLIP_OVER_FOLLOWING = 3.0
+#: change across it makes through the valve's gain read at the set-point
+#: steps (a valve that follows its OP reads about 1).
+SLIP_OVER_FOLLOWING = 5.0
 #: Set-point steps answered that read the valve's gain.
 MIN_ANSWERED = 3
 
@@ -635,31 +636,47 @@ def kinks_over_following(kinks, bumps: SetPointBumps) -> float:
     -------
     float
         Median over the valve events of the slope step over the valve's gain
-        times the OP's travel before the kink; NaN where fewer than
-        :data:`MIN_ANSWERED` steps answered the kick or there is no event.
+        times the OP's change across the kink
+        (:attr:`~valvediag.analysis.signature.StickSlipEvents.op_across`: the
+        OP's mean over the half-window after it less that over the one
+        before); NaN where fewer than :data:`MIN_ANSWERED` steps answered
+        the kick or there is no event.
 
     Notes
     -----
     The gain is the median, over the steps the level answered, of the fitted
     gain [PV unit / (OP unit s)]: what a unit of OP does to the level's
-    slope. A valve that follows its OP steps the slope by about the gain times
-    the OP's move, so its kinks read about 1 (1-3 on the development sets'
-    healthy levels, where a quick OP move after a load's step makes a kink
-    the reader took for a slip). A sticky valve jumps by the OP's travel since
-    it stuck, which the stretch before the kink holds only in part: its
-    kinks read 3-30. A sticky valve whose kicks always exceed its band
-    answers every step, and its gain so read is a slipping valve's, larger
-    than a following one's: the ratio then errs low. The scan
+    slope. A level integrates its valve, so a valve that follows its OP
+    changes the level's slope across a kink by the gain times the valve's
+    own change across it, which is the OP's; its kinks read about 1. The
+    healthy levels whose kinks the reader took for slips (a load's step, a
+    quick OP move after one) read 0.7-4.1 on the realistic benchmark's
+    development sets and study seeds 10-26. A slip changes the slope by the
+    valve's jump, while the OP across it has only crept on (and turned
+    back, once the level turned): sticky levels read 5.7-57 there (one,
+    loop 1 of development seed 1, 1.5), and 4.0-118, four of them under
+    5.7, where their steps also found the valve going against its kicks
+    (see below). The OP's *travel
+    before* the kink, which an earlier version divided by, holds a sticky
+    valve's creep up to the slip: it read 1.4-2.6 on six of the study's
+    sticky levels whose kinks made a fault, below a healthy one's 4.6.
+
+    A sticky valve whose kicks always exceed its band answers every step,
+    and its gain so read is a slipping valve's, larger than a following
+    one's: the ratio then errs low. The scan
     (:func:`~valvediag.analysis.classify.classify_loop`) therefore lets the
     ratio clear no kinks where the same steps found a valve that went
     against its kicks (:attr:`SetPointBumps.found`). Where the set point
-    never moves, nothing is read.
+    never moves, nothing is read. A load that steps while the OP hardly
+    moves across the kink reads as a slip, and a loop slower than the
+    kink's window (its OP still making up for a load's step at the end of
+    the window) reads above 1.
     """
     answered = bumps.z >= BUMP_Z
     if int(answered.sum()) < MIN_ANSWERED or kinks.size.size == 0:
         return math.nan
     g = float(np.median(bumps.gain[answered]))
-    moved = g * kinks.travel
+    moved = g * np.abs(kinks.op_across)
     ok = moved > 0
     if not ok.any():
         return math.nan

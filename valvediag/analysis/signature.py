@@ -879,6 +879,12 @@ class StickSlipEvents:
     size : numpy.ndarray
         Each valve event's size: a level's slope step [PV unit/s], a PV's
         jump [PV unit].
+    op_across : numpy.ndarray
+        The OP's change across each valve event: its mean over the ``step``
+        samples after the event less its mean over the ``step`` samples
+        before [OP unit]. A valve that follows its OP changes a level's
+        slope across a kink by its gain times this; a slip by its jump,
+        whatever the OP did (:func:`~valvediag.analysis.bumps.kinks_over_following`).
     """
 
     process: str
@@ -894,6 +900,7 @@ class StickSlipEvents:
     step: int = 1
     travel: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     size: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    op_across: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     pv: np.ndarray | None = field(default=None, repr=False)
     op: np.ndarray | None = field(default=None, repr=False)
     sample_time: float = 1.0
@@ -1223,10 +1230,19 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
     op_travel = float(np.median(travel[ok])) if n_ok else math.nan
     kind, reason = _events_reading(process, is_fault, int(idx.size), n_ok, n_slip, n_take,
                                    op_travel)
+    # the OP's mean over the step after each event less that over the step
+    # before (NaN where the record ends within a step of it)
+    c = np.r_[0.0, np.cumsum(op)]
+    at = idx[ok]
+    inside = (at >= L) & (at + L <= op.size)
+    k = np.where(inside, at, L)
+    across = np.where(inside, (c[np.minimum(k + L, op.size)] - 2.0 * c[k]
+                               + c[np.maximum(k - L, 0)]) / L, math.nan)
     return StickSlipEvents(found=is_fault, reason=reason, events=int(idx.size),
                            consistent=n_ok, slips=n_slip, takeups=n_take, kind=kind,
                            op_travel=op_travel, index=idx[ok], step=L, travel=travel[ok],
-                           size=size[ok] / (h if process == "integrating" else 1.0), **base)
+                           size=size[ok] / (h if process == "integrating" else 1.0),
+                           op_across=across, **base)
 
 
 def _events_fault(process: str, events: int, ok: int, slips: int, short: bool) -> bool:
@@ -1289,7 +1305,8 @@ def pooled_stick_slip_events(readings, *, record_s: float) -> StickSlipEvents:
         The counts summed, judged by the rule of :func:`stick_slip_events`
         (the snapshot rule where ``record_s`` is at most
         :data:`SNAPSHOT_S`); ``index`` is empty (each stretch counts its own
-        samples), ``travel`` and ``size`` are the stretches' in turn.
+        samples), ``travel``, ``size`` and ``op_across`` are the stretches' in
+        turn.
 
     Notes
     -----
@@ -1314,6 +1331,7 @@ def pooled_stick_slip_events(readings, *, record_s: float) -> StickSlipEvents:
     takeups = sum(r.takeups for r in readings)
     travel = np.concatenate([r.travel for r in readings])
     size = np.concatenate([r.size for r in readings])
+    across = np.concatenate([r.op_across for r in readings])
     op_travel = float(np.median(travel)) if travel.size else math.nan
     fault = _events_fault(process, events, ok, slips, record_s <= SNAPSHOT_S)
     kind, reason = _events_reading(process, fault, events, ok, slips, takeups, op_travel)
@@ -1321,7 +1339,8 @@ def pooled_stick_slip_events(readings, *, record_s: float) -> StickSlipEvents:
                            reason=f"over {len(readings)} stretches, {reason}", events=events,
                            consistent=ok, slips=slips, takeups=takeups, kind=kind,
                            op_travel=op_travel, step=max(r.step for r in readings),
-                           travel=travel, size=size, sample_time=readings[0].sample_time)
+                           travel=travel, size=size, op_across=across,
+                           sample_time=readings[0].sample_time)
 
 
 def _slips(y, op, err, sp, L, thr, band, err_min, drawn_at=None):
