@@ -656,10 +656,10 @@ def kinks_over_following(kinks, bumps: SetPointBumps) -> float:
     back, once the level turned): sticky levels read 5.7-57 there (one,
     loop 1 of development seed 1, 1.5), and 4.0-118, four of them under
     5.7, where their steps also found the valve going against its kicks
-    (see below). The OP's *travel
-    before* the kink, which an earlier version divided by, holds a sticky
-    valve's creep up to the slip: it read 1.4-2.6 on six of the study's
-    sticky levels whose kinks made a fault, below a healthy one's 4.6.
+    (see below). The OP's *travel before* the kink, which an earlier
+    version divided by, holds a sticky valve's creep up to the slip: it
+    read 1.4-2.6 on six of the study's sticky levels whose kinks made a
+    fault, below a healthy one's 4.6.
 
     A sticky valve whose kicks always exceed its band answers every step,
     and its gain so read is a slipping valve's, larger than a following

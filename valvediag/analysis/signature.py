@@ -1129,9 +1129,9 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
     :data:`MIN_SLIP_SHARE` of the jumps (or kinks) judged, or, in a
     snapshot of at most :data:`SNAPSHOT_S`, :data:`MIN_SLIPS_ALONE` of one
     kind (all slips or all take-ups) and no other. A snapshot is a record
-    exported that short (``record_s``): a
-    stretch that gaps cut out of a longer record needs :data:`MIN_SLIPS` as
-    the record would, and the scan sums the events of its stretches
+    exported that short (``record_s``): a stretch that gaps cut out of a
+    longer record needs :data:`MIN_SLIPS` as the record would, and the scan
+    sums the events of its stretches
     (:func:`pooled_stick_slip_events`). On the realistic benchmark's study
     seeds 10-16 (4 loops a class) cut by three gaps of 10-30 minutes at
     random places, one healthy flow read ``stiction`` from two jumps in one
@@ -1221,7 +1221,7 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
             continue
         n_ok = int(found[1].sum())
         n_slip = int(slips_of(found[1], found[3]).sum())
-        fault = _events_fault(process, found[0].size, n_ok, n_slip, short)
+        fault = _events_fault(found[0].size, n_ok, n_slip, short)
         # the shortest step that shows a fault; else the one with the most valve events
         if best is None or (not best[3] and (fault or n_ok > best[2])):
             best = (L, found, n_ok, fault)
@@ -1249,14 +1249,14 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
                            op_across=across, **base)
 
 
-def _events_fault(process: str, events: int, ok: int, slips: int, short: bool) -> bool:
+def _events_fault(events: int, ok: int, slips: int, short: bool) -> bool:
     """Whether ``ok`` valve events (``slips`` of them slips) of ``events``
     jumps judged make a fault (see :func:`stick_slip_events`, Notes)."""
     share = ok / events if events else 0.0
     if ok >= MIN_SLIPS and share >= MIN_SLIP_SHARE:
         return True
     # so few events name a fault only in a snapshot, all of them, of one kind
-    return (short and ok >= MIN_SLIPS_ALONE and share == 1.0 and slips in (0, ok))
+    return short and ok >= MIN_SLIPS_ALONE and share == 1.0 and slips in (0, ok)
 
 
 def _events_reading(process: str, fault: bool, events: int, ok: int, slips: int,
@@ -1337,7 +1337,7 @@ def pooled_stick_slip_events(readings, *, record_s: float) -> StickSlipEvents:
     size = np.concatenate([r.size for r in readings])
     across = np.concatenate([r.op_across for r in readings])
     op_travel = float(np.median(travel)) if travel.size else math.nan
-    fault = _events_fault(process, events, ok, slips, record_s <= SNAPSHOT_S)
+    fault = _events_fault(events, ok, slips, record_s <= SNAPSHOT_S)
     kind, reason = _events_reading(process, fault, events, ok, slips, takeups, op_travel)
     return StickSlipEvents(process=process, found=fault,
                            reason=f"over {len(readings)} stretches, {reason}", events=events,
