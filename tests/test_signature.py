@@ -470,7 +470,12 @@ def test_two_kinks_and_no_other_make_a_level_snapshot_sticky(seed, index):
     control, no cycle), exported as 4 h snapshots at 10 s: each reads two
     kinks, both after the level ran straight while the OP crept, both the
     way it crept, and no other. That is a fault in a snapshot, as two slips
-    are on a flow, and too few in a day's record."""
+    are on a flow, and too few in a day's record; and in the scan only where
+    the set-point steps read the valve's gain and the kinks step the slope
+    far beyond what the OP's change across them makes through it (two kinks
+    alone may be a load's turns: healthy levels averaged over 30 s read
+    two such kinks)."""
+    from valvediag.analysis.bumps import SLIP_OVER_FOLLOWING
     from valvediag.synth.cases import benchmark_rng, draw_loop
 
     loop = draw_loop("level-stiction-events", benchmark_rng("level-stiction-events", seed, index))
@@ -484,6 +489,21 @@ def test_two_kinks_and_no_other_make_a_level_snapshot_sticky(seed, index):
     d = classify_loop(loop.pv, loop.op, loop.sp, sample_time=loop.sample_time,
                       process_type="integrating")
     assert d.verdict == "stiction" and "level ran straight" in d.reason, d.reason
+    assert d.evidence["setpoint_bumps"]["kinks_over_following"] >= SLIP_OVER_FOLLOWING
+
+
+def test_two_kinks_of_a_level_without_set_point_steps_stand_unchecked():
+    """A hand-built sticky level snapshot (1.5 h) under a wandering load and
+    a set point that never moves: two slips, read as two kinks and no
+    other. Nothing reads the valve's gain to check them against a valve
+    that follows its OP, so the scan does not call the valve on them."""
+    pv, op, sp = _level_staircase(seed=1, wander=True, n=5400, tau=800.0, every=1800.0,
+                                  noise=0.05)
+    e = stick_slip_events(pv, op, 1.0, process="integrating", sp=sp)
+    assert e.found and e.consistent == e.events == 2, e.reason
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="integrating")
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+    assert d.evidence["kinks_unchecked"]["consistent"] == 2
 
 
 def test_a_levels_kinks_that_the_op_did_not_drive_are_not_slips():

@@ -103,7 +103,7 @@ from .oscillation import (Oscillation, PhaseWander, detect_oscillation, phase_wa
 from .quality import (bridge_short_gaps, despike, drawn_lines, longest_run, record_quantum,
                       stored_points, white_noise_std)
 from .reversals import ReversalRests, reversal_rests
-from .signature import (KIND_SHARE, SENSE_SKEW, SIGNATURE_LIMITS, ValveSignature,
+from .signature import (KIND_SHARE, MIN_SLIPS, SENSE_SKEW, SIGNATURE_LIMITS, ValveSignature,
                         controller_lag, cycle_transitions, horch_correlation,
                         stick_slip_events, valve_signature)
 from .travel import ValveTravel, valve_travel
@@ -897,6 +897,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                 # too few to make up the cycle: kept as evidence, not a verdict
                 ev["stick_slip_too_few"] = dict(slips.as_dict(), process=kind,
                                                 needed=round(float(min_events), 1))
+            checked = False      # the set-point steps cleared the kinks of a following valve
             if kind == "integrating" and ev_sp is not None and slips.consistent > 0:
                 # a valve that follows the OP kinks a level by about its gain
                 # (read at the set-point steps) times the OP's move: no slip
@@ -913,6 +914,14 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                     if slips.found:
                         ev["kinks_followed"] = dict(slips.as_dict(), ratio=round(ratio, 2))
                     continue
+                checked = bumps.found or ratio >= SLIP_OVER_FOLLOWING
+            if kind == "integrating" and slips.found and slips.consistent < MIN_SLIPS \
+                    and not checked:
+                # two kinks, the most a snapshot holds, are too few alone to rule
+                # out a load's turns after the OP crept their way: a fault only
+                # where the set-point steps cleared them of a following valve
+                ev["kinks_unchecked"] = slips.as_dict()
+                continue
             events_read[kind] = slips
             if slips.found and slips.consistent >= min_events:
                 ev.update(stick_slip=slips.as_dict(), process_screen=kind, from_events=True)
