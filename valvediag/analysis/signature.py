@@ -1226,18 +1226,17 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
             continue
         n_ok = int(found[1].sum())
         n_slip = int(slips_of(found[1], found[3]).sum())
-        fault = _events_fault(found[0].size, n_ok, n_slip, short)
-        full = n_ok >= MIN_SLIPS and n_ok >= MIN_SLIP_SHARE * found[0].size
-        strength = (2 if full else 1) if fault else 0
+        rule = _fault_rule(found[0].size, n_ok, n_slip, short)
         # the shortest step that shows a fault by the full rule, else by the
         # snapshot rule alone (two events: the scan may ask more of a level's
         # two kinks); else the one with the most valve events
-        if best is None or strength > best[4] or (strength == best[4] == 0 and n_ok > best[2]):
-            best = (L, found, n_ok, fault, strength)
+        if best is None or rule > best[3] or (rule == best[3] == 0 and n_ok > best[2]):
+            best = (L, found, n_ok, rule)
     if best is None:
         what = "kink of the level" if process == "integrating" else "jump of the PV"
         return StickSlipEvents(found=False, reason=f"no {what} beyond its noise", **base)
-    L, (idx, ok, travel, on, size), n_ok, is_fault, _ = best
+    L, (idx, ok, travel, on, size), n_ok, rule = best
+    is_fault = rule > 0
     slip = slips_of(ok, on)
     n_slip, n_take = int(slip.sum()), int((ok & ~slip).sum())
     op_travel = float(np.median(travel[ok])) if n_ok else math.nan
@@ -1248,9 +1247,9 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
     c = np.r_[0.0, np.cumsum(op)]
     at = idx[ok]
     inside = (at >= L) & (at + L <= op.size)
-    k = np.where(inside, at, L)
-    across = np.where(inside, (c[np.minimum(k + L, op.size)] - 2.0 * c[k]
-                               + c[np.maximum(k - L, 0)]) / L, math.nan)
+    k = at[inside]
+    across = np.full(at.size, math.nan)
+    across[inside] = (c[k + L] - 2.0 * c[k] + c[k - L]) / L
     return StickSlipEvents(found=is_fault, reason=reason, events=int(idx.size),
                            consistent=n_ok, slips=n_slip, takeups=n_take, kind=kind,
                            op_travel=op_travel, index=idx[ok], step=L, travel=travel[ok],
@@ -1258,14 +1257,15 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
                            op_across=across, **base)
 
 
-def _events_fault(events: int, ok: int, slips: int, short: bool) -> bool:
-    """Whether ``ok`` valve events (``slips`` of them slips) of ``events``
-    jumps judged make a fault (see :func:`stick_slip_events`, Notes)."""
+def _fault_rule(events: int, ok: int, slips: int, short: bool) -> int:
+    """By which rule ``ok`` valve events (``slips`` of them slips) of
+    ``events`` jumps judged make a fault (see :func:`stick_slip_events`,
+    Notes): 2 the full rule, 1 the snapshot rule alone, 0 none."""
     share = ok / events if events else 0.0
     if ok >= MIN_SLIPS and share >= MIN_SLIP_SHARE:
-        return True
+        return 2
     # so few events name a fault only in a snapshot, all of them, of one kind
-    return short and ok >= MIN_SLIPS_ALONE and share == 1.0 and slips in (0, ok)
+    return int(short and ok >= MIN_SLIPS_ALONE and share == 1.0 and slips in (0, ok))
 
 
 def _events_reading(process: str, fault: bool, events: int, ok: int, slips: int,
@@ -1346,7 +1346,7 @@ def pooled_stick_slip_events(readings, *, record_s: float) -> StickSlipEvents:
     size = np.concatenate([r.size for r in readings])
     across = np.concatenate([r.op_across for r in readings])
     op_travel = float(np.median(travel)) if travel.size else math.nan
-    fault = _events_fault(events, ok, slips, record_s <= SNAPSHOT_S)
+    fault = _fault_rule(events, ok, slips, record_s <= SNAPSHOT_S) > 0
     kind, reason = _events_reading(process, fault, events, ok, slips, takeups, op_travel)
     return StickSlipEvents(process=process, found=fault,
                            reason=f"over {len(readings)} stretches, {reason}", events=events,
