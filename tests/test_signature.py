@@ -504,6 +504,8 @@ def test_two_kinks_of_a_level_without_set_point_steps_stand_unchecked():
     d = classify_loop(pv, op, sp, sample_time=1.0, process_type="integrating")
     assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
     assert d.evidence["kinks_unchecked"]["consistent"] == 2
+    # kept for a record cut by gaps, whose stretches' kinks the scan pools
+    assert [r.consistent for r in d.events if r.process == "integrating"] == [2]
 
 
 def test_a_levels_kinks_that_the_op_did_not_drive_are_not_slips():

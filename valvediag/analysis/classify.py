@@ -915,14 +915,15 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                         ev["kinks_followed"] = dict(slips.as_dict(), ratio=round(ratio, 2))
                     continue
                 checked = bumps.found or ratio >= SLIP_OVER_FOLLOWING
+            events_read[kind] = slips
             if kind == "integrating" and slips.found and slips.consistent < MIN_SLIPS \
                     and not checked:
                 # two kinks, the most a snapshot holds, are too few alone to rule
                 # out a load's turns after the OP crept their way: a fault only
                 # where the set-point steps cleared them of a following valve
+                # (they still count where a record's stretches are pooled)
                 ev["kinks_unchecked"] = slips.as_dict()
                 continue
-            events_read[kind] = slips
             if slips.found and slips.consistent >= min_events:
                 ev.update(stick_slip=slips.as_dict(), process_screen=kind, from_events=True)
                 if slips.kind == "undecided" and kind == "self-regulating":

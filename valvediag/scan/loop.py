@@ -17,7 +17,7 @@ from ..analysis.classify import LAG_DOUBT, LoopDiagnosis, classify_loop
 from ..analysis.oscillation import (ACF_STRONG, MIN_CROSSINGS, PERIODIC_FRACTION_MIN, PhaseWander,
                                    detect_oscillation, pooled_phase_wander)
 from ..analysis.reversals import pooled_reversal_rests
-from ..analysis.signature import pooled_stick_slip_events
+from ..analysis.signature import MIN_SLIPS, pooled_stick_slip_events
 from ..analysis.quality import (BRIDGE_SAMPLES, DataQuality, bridge_short_breaks,
                                 mask_frozen_pv, quality_metrics)
 from ..io.registry import LoopSpec
@@ -785,7 +785,9 @@ def _pooled_events(seg_diag, record_s: float, process_type: str):
     gap-free record's (:func:`~valvediag.analysis.signature.pooled_stick_slip_events`),
     a flow's jumps and a level's kinks apart. A level's kinks that a valve
     following the OP explains (read against each stretch's set-point steps)
-    are not counted."""
+    are not counted, and a level's pooled kinks need the full rule's three:
+    two, which a snapshot allows, stand only where a stretch's own
+    set-point steps checked them."""
     quiet = [e for e in seg_diag if e[2].verdict in ("no-oscillation", "insufficient-data")]
     for process in ("self-regulating", "integrating"):
         read = [(e, r) for e in quiet for r in e[2].events
@@ -794,7 +796,9 @@ def _pooled_events(seg_diag, record_s: float, process_type: str):
         if len(readings) < 2:
             continue
         pooled = pooled_stick_slip_events(readings, record_s=record_s)
-        if not pooled.found:
+        if not pooled.found or (process == "integrating" and pooled.consistent < MIN_SLIPS):
+            # a level's two kinks pooled from stretches were checked against no
+            # set-point steps as two (classify_loop's kinks_unchecked)
             continue
         src = "loop registry" if process_type != "unknown" else \
             "data test: the OP after the set-point steps" if process == "integrating" \
