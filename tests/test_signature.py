@@ -508,6 +508,80 @@ def test_two_kinks_of_a_level_without_set_point_steps_stand_unchecked():
     assert [r.consistent for r in d.events if r.process == "integrating"] == [2]
 
 
+@pytest.mark.parametrize("seed, index", [(1, 14), (10, 3)])
+def test_a_level_of_no_known_type_is_called_by_kinks_its_set_point_steps_checked(seed, index):
+    """Day-long records of sticky levels from the realistic benchmark's
+    generator (proportional control, no cycle, set-point steps every 20-60
+    minutes), with no process type in the registry. The OP's lasting answer
+    to the steps names no type (a sticky valve settles its OP anywhere in its
+    band) and shows no lasting shift within two standard errors, and read as
+    a flow the record shows nothing. Read as a level's,
+    its kinks are slips, and the set-point steps read as bump tests clear
+    them of a valve that follows its OP: the scan calls the valve sticky.
+    Without a set point, nothing checks the kinks, and they are not read."""
+    from valvediag.analysis.bumps import SLIP_OVER_FOLLOWING
+    from valvediag.synth.cases import benchmark_rng, draw_loop
+
+    loop = draw_loop("level-stiction-events", benchmark_rng("level-stiction-events", seed, index))
+    d = classify_loop(loop.pv, loop.op, loop.sp, sample_time=loop.sample_time,
+                      process_type="unknown")
+    assert d.evidence["setpoint_screen"]["process"] == "unknown"
+    assert d.verdict == "stiction" and "type not known" in d.reason, d.reason
+    bumps = d.evidence["setpoint_bumps"]
+    assert bumps["found"] or bumps["kinks_over_following"] >= SLIP_OVER_FOLLOWING
+    d = classify_loop(loop.pv, loop.op, None, sample_time=loop.sample_time,
+                      process_type="unknown")
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+
+
+def test_a_level_of_no_known_type_whose_kinks_nothing_checked_is_not_called():
+    """A hand-built sticky level (3 h) under a wandering load, whose set point
+    never moves and whose registry names no type: read as a level's, it shows
+    slips enough for a fault, but no set-point step tells its type or reads
+    the valve's gain to check them, and a flow's answers to its load kink
+    its record as well: the scan names no fault."""
+    pv, op, sp = _level_staircase(seed=2, wander=True, n=10_800, tau=400.0, every=900.0,
+                                  noise=0.05)
+    e = stick_slip_events(pv, op, 1.0, process="integrating", sp=sp)
+    assert e.found and e.consistent >= MIN_SLIPS, e.reason
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="integrating")
+    assert d.verdict == "stiction", d.reason
+    d = classify_loop(pv, op, sp, sample_time=1.0, process_type="unknown")
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+    assert not [r for r in d.events if r.process == "integrating"]
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_a_tight_flow_of_no_known_type_is_not_read_as_a_level(seed):
+    """A healthy flow under tight PI control (loop gain 3.5) whose load steps
+    as pumps start and stop, and whose set point steps every 20-60 minutes,
+    with no type in the registry. Read as a level its answers to the load
+    are slips, and its set-point steps, read as a level's bump tests, would
+    clear them. Its OP's lasting shift after the steps is about 1 / 3.5 of
+    the kick, too near a level's nought for the screen to name a type; but
+    it stands many standard errors above nought, as no level's does, so the
+    record is not read as a level."""
+    from valvediag.analysis.signature import stick_slip_events
+    from valvediag.synth.cases import alternating_steps
+
+    rng = np.random.default_rng(seed)
+    h, n = 5.0, 17280
+    load = alternating_steps(rng, n, every_s=(1800.0, 5400.0), size=(1.0, 3.0), sample_time=h)
+    load = load + np.cumsum(rng.normal(0.0, 0.02, n))
+    sp = alternating_steps(rng, n, every_s=(1200.0, 3600.0), size=(2.0, 6.0), sample_time=h)
+    run = simulate_loop(kc=3.5, ti=80.0, sample_time=h, n_samples=n, process="self-regulating",
+                        tau=50.0, lag=3.0, dead_time=5.0, sp=50.0, load_profile=load,
+                        sp_profile=sp, noise_std=0.15, seed=seed)
+    as_level = stick_slip_events(run.pv, run.op, h, process="integrating", sp=run.sp)
+    assert as_level.found and as_level.kind == "stiction"          # the hazard is real
+    d = classify_loop(run.pv, run.op, run.sp, sample_time=h, process_type="unknown")
+    screen = d.evidence["setpoint_screen"]
+    assert screen["process"] == "unknown"
+    assert screen["shift_over_kick"] > 2.0 * screen["standard_error"]
+    assert d.verdict == "no-oscillation", d.reason
+    assert not [r for r in d.events if r.process == "integrating"]
+
+
 def test_a_levels_kinks_that_the_op_did_not_drive_are_not_slips():
     """A healthy level under PI control whose inflow steps up and down at
     random times (a pump started and stopped): every step kinks the level,

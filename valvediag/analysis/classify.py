@@ -12,9 +12,14 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    ``backlash`` from its dead-band take-ups; the events are also read on a
    self-regulating loop whose cycle the valve signature cannot explain). A
    record of unknown process type is read as a flow: a level's kinks are
-   read only where the registry calls the process integrating, for a
-   healthy flow's answers to its load's steps kink its record as a sticky
-   level valve's slips do.
+   read alone only where the registry calls the process integrating (or
+   the OP's answer to the set-point steps does), for a healthy flow's
+   answers to its load's steps kink its record as a sticky level valve's
+   slips do. Where that answer names no type but shows no lasting shift
+   of the OP within two standard errors, the record is read as a level
+   too, and its kinks count only where the set-point steps, read as a
+   level's bump tests, check them (a tight flow's shift, a third of its
+   kick, stands many standard errors above nought).
 3. ``linear-oscillation``: a regular oscillation that no valve nonlinearity
    explains (tuning or an external disturbance); send no one to the valve.
    A swing that keeps a clock's time, read before any valve method
@@ -876,17 +881,26 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         the registry has none (a square load's turns on a flow are no level's
         slips). ``min_events``: the fewest valve events that count."""
         ev_sp = sp[a:b] if sp is not None else None
-        # a level's kinks are read only where the process is known to
-        # integrate: a healthy flow's answer to a load's step kinks its record
-        # as a slip kinks a level's, and a loose flow valve's take-ups do too.
-        # Without the registry's word, the OP's lasting answer to the
-        # set-point steps may name the process
+        # a level's kinks are read as a fault alone only where the process is
+        # known to integrate: a healthy flow's answer to a load's step kinks
+        # its record as a slip kinks a level's, and a loose flow valve's
+        # take-ups do too. Without the registry's word, the OP's lasting
+        # answer to the set-point steps may name the process. Where it names
+        # none but shows no lasting shift either (none within two standard
+        # errors: a sticky level's OP rests anywhere in its band, and scatters
+        # the shifts), the record is read as a flow and then as a level, whose
+        # kinks count only where the set-point steps, read as a level's bump
+        # tests, cleared them of a valve that follows its OP
+        level_too = False
         if process_type == "unknown" and screened == "unknown" and ev_sp is not None:
             steps = setpoint_process_screen(x, u, ev_sp, h)
             ev["setpoint_screen"] = steps.as_dict()
             screened = steps.process
+            level_too = steps.shift_over_kick - 2.0 * steps.standard_error <= 0.0
+        guessed = process_type == "unknown" and screened == "unknown"
         kinds = (process_type,) if process_type != "unknown" else \
-            (screened,) if screened != "unknown" else ("self-regulating",)
+            (screened,) if not guessed else \
+            ("self-regulating", "integrating") if level_too else ("self-regulating",)
         if pv_compressed:
             kinds = tuple(k for k in kinds if k != "integrating")
         for kind in kinds:
@@ -915,6 +929,12 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                         ev["kinks_followed"] = dict(slips.as_dict(), ratio=round(ratio, 2))
                     continue
                 checked = bumps.found or ratio >= SLIP_OVER_FOLLOWING
+            if kind == "integrating" and guessed and not checked:
+                # a record of no known type whose kinks no set-point step checked
+                # (kept from the stretches' pooling too, which has no steps)
+                if slips.found:
+                    ev["kinks_unchecked"] = slips.as_dict()
+                continue
             events_read[kind] = slips
             if kind == "integrating" and slips.found and slips.consistent < MIN_SLIPS \
                     and not checked:
@@ -936,7 +956,9 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                         return loose
                 src = "loop registry" if process_type != "unknown" else \
                     "data test: the OP after the set-point steps" if level_by_steps() \
-                    else "assumed"
+                    else ("type not known, read as a level's where its set-point steps "
+                          "cleared the kinks of a valve that follows its OP"
+                          if kind == "integrating" else "assumed")
                 # a type the data named is the loop's type in the result
                 named = {} if process_type != "unknown" or screened == "unknown" else \
                     {"process_screen": kind}
@@ -1017,9 +1039,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             # valve_events read the record as self-regulating only: say how
             # to have a level's kinks read
             reason += ("; the process type is not in the loop registry, so the record was read "
-                       "as a self-regulating loop's (a level's kinks are read only where the "
-                       "registry names it integrating, or where the OP's answer to the "
-                       "set-point steps shows it)")
+                       "as a self-regulating loop's (a level's kinks are read alone only where "
+                       "the registry names it integrating, or where the OP's answer to the "
+                       "set-point steps shows it; else only where that answer shows no lasting "
+                       "shift and the steps check the kinks)")
         steps = ev.get("setpoint_screen", {}).get("process", "unknown")
         named = {"process_screen": steps} if process_type == "unknown" and steps != "unknown" \
             else {}
