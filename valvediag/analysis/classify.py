@@ -929,19 +929,16 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                         ev["kinks_followed"] = dict(slips.as_dict(), ratio=round(ratio, 2))
                     continue
                 checked = bumps.found or ratio >= SLIP_OVER_FOLLOWING
-            if kind == "integrating" and guessed and not checked:
-                # a record of no known type whose kinks no set-point step checked
-                # (kept from the stretches' pooling too, which has no steps)
-                if slips.found:
-                    ev["kinks_unchecked"] = slips.as_dict()
-                continue
-            events_read[kind] = slips
-            if kind == "integrating" and slips.found and slips.consistent < MIN_SLIPS \
-                    and not checked:
-                # two kinks, the most a snapshot holds, are too few alone to rule
-                # out a load's turns after the OP crept their way: a fault only
-                # where the set-point steps cleared them of a following valve
-                # (they still count where a record's stretches are pooled)
+            level_unchecked = kind == "integrating" and not checked
+            if not (level_unchecked and guessed):
+                # pooled over a record's stretches, which read no set-point steps:
+                # a level of no known type stands only on its own steps' check
+                events_read[kind] = slips
+            if level_unchecked and slips.found and (guessed or slips.consistent < MIN_SLIPS):
+                # kinks of a record of no known type, or two kinks (the most a
+                # snapshot holds: too few alone to rule out a load's turns after
+                # the OP crept their way), make a fault only where the set-point
+                # steps cleared them of a following valve
                 ev["kinks_unchecked"] = slips.as_dict()
                 continue
             if slips.found and slips.consistent >= min_events:
