@@ -4,7 +4,8 @@ import matplotlib
 import numpy as np
 import pytest
 
-from valvediag.analysis.oscillation import (CLOCK_WANDER, MIN_CROSSINGS, detect_oscillation,
+from valvediag.analysis.oscillation import (CLOCK_JITTER, CLOCK_WANDER, MIN_CROSSINGS,
+                                            MIN_JITTER_CROSSINGS, detect_oscillation,
                                             phase_wander)
 
 matplotlib.use("Agg")
@@ -47,11 +48,11 @@ def test_a_clock_keeps_time_and_a_random_walk_wanders():
 def test_no_reading_from_too_few_cycles_no_noise_or_noise_the_loop_never_saw():
     rng = np.random.default_rng(1)
     k = np.arange(12000)
-    # a short snapshot: fewer crossings than a wander can be read from
-    n_short = int(P * (MIN_CROSSINGS - 5))
-    short = _read(*_swing(k[:n_short] / P, rng))
-    assert not short.keeps_clock and np.isnan(short.wander)
-    assert f"fewer than {MIN_CROSSINGS}" in short.reason
+    # a snapshot of three cycles: too few crossings to read even their periods
+    tiny = _read(*_swing(k[:int(P * (MIN_JITTER_CROSSINGS - 1.5))] / P, rng))
+    assert tiny.crossings < MIN_JITTER_CROSSINGS
+    assert not tiny.keeps_clock and np.isnan(tiny.wander) and np.isnan(tiny.jitter_ratio)
+    assert f"fewer than {MIN_CROSSINGS}" in tiny.reason
     # no noise at all: nothing moves a limit cycle's phase either
     pv, op = _swing(k / P, rng, noise=0.0)
     quiet = _read(pv, op)
@@ -63,6 +64,40 @@ def test_no_reading_from_too_few_cycles_no_noise_or_noise_the_loop_never_saw():
     assert not unseen.keeps_clock and "does not answer" in unseen.reason
     # without the OP the same record is read
     assert phase_wander(pv, detect_oscillation(pv, 1.0)).keeps_clock
+
+
+def test_a_short_snapshot_keeps_time_by_its_periods_and_a_limit_cycle_does_not():
+    # 35 cycles: too few for a random walk's wander to show, but a clock's
+    # periods vary only by the noise's reading of its crossings, and a limit
+    # cycle's by more (1 % of a period at random here, about 2.6 times the
+    # reading's 0.2 samples)
+    rng = np.random.default_rng(0)
+    k = np.arange(int(P * (MIN_CROSSINGS - 5)))
+    clock = _read(*_swing(k / P, rng))
+    ends = np.cumsum(P * (1.0 + 0.01 * rng.standard_normal(60)))
+    walk = _read(*_swing(np.interp(k, np.r_[0.0, ends], np.arange(61.0)), rng))
+    assert MIN_JITTER_CROSSINGS <= clock.crossings < MIN_CROSSINGS
+    assert MIN_JITTER_CROSSINGS <= walk.crossings < MIN_CROSSINGS
+    assert np.isnan(clock.wander) and np.isnan(walk.wander)
+    # about 1 for a clock (0.74-1.16 over twelve draws), 2.2-3.2 for this walk
+    assert clock.steady_periods and 0.6 <= clock.jitter_ratio <= 1.3 < CLOCK_JITTER
+    assert not walk.steady_periods and walk.jitter_ratio > 2.0
+    # the wander's own reading needs more crossings
+    assert not clock.keeps_clock and not walk.keeps_clock
+    assert clock.as_dict()["jitter_ratio"] == round(clock.jitter_ratio, 3)
+    # the same clock with noise the loop never saw: its periods are not read
+    pv, _ = _swing(k / P, rng)
+    _, op = _swing(k / P, rng, noise=0.0)
+    unseen = _read(pv, op)
+    assert not unseen.steady_periods and np.isnan(unseen.jitter_ratio)
+    # nor where the PV was stored by exception: each stored point is joined
+    # to the next by a straight line, and the noise between them is gone
+    pv, op = _swing(k / P, rng)
+    kept = np.r_[0, np.flatnonzero(np.abs(np.diff(pv)) > 0.08) + 1, pv.size - 1]
+    stored = np.interp(k, kept, pv[kept])
+    assert 0.1 < kept.size / pv.size < 0.7
+    squeezed = _read(stored, op)
+    assert not squeezed.steady_periods and np.isnan(squeezed.jitter_ratio)
 
 
 def test_a_clock_read_through_a_slowly_beating_error_still_keeps_time():
@@ -114,8 +149,10 @@ def test_the_stretches_of_a_record_cut_by_gaps_are_read_on_one_clock():
     for phase, keeps in ((k / P, True), (walk_phase, False)):
         pv, op = _swing(phase, rng)
         reads = [_read(pv[s:s + int(25 * P)], op[s:s + int(25 * P)]) for s in starts]
+        # too few crossings each for a wander; each stretch's periods alone
+        # already tell the clock from the walk
         assert all(not r.keeps_clock and r.readable and 20 <= r.crossings < MIN_CROSSINGS
-                   for r in reads)
+                   and r.steady_periods is keeps for r in reads)
         pooled = pooled_phase_wander(reads, [float(s) for s in starts])
         assert pooled.crossings == sum(r.crossings for r in reads)
         assert pooled.keeps_clock is keeps, pooled.reason
@@ -132,3 +169,55 @@ def test_the_stretches_of_a_record_cut_by_gaps_are_read_on_one_clock():
     unseen = [_read(pv[s:s + int(25 * P)], op[s:s + int(25 * P)]) for s in starts]
     assert not any(r.readable for r in unseen)
     assert not pooled_phase_wander(unseen, starts).keeps_clock
+
+
+@pytest.mark.parametrize("klass, seed, index, steady", [
+    ("temperature-linear-disturbance", 1, 4, True),   # a square load, 6 crossings in 2 h
+    ("temperature-linear-disturbance", 2, 13, True),  # a triangular load, 5 in 1 h
+    ("flow-linear-disturbance", 1, 10, True),         # a triangular load, 12 in 1 h
+    ("flow-linear-disturbance", 12, 1, True),         # a clipped sine, 12 in 1 h
+    ("temperature-stiction-cycle", 10, 3, False),     # 9 crossings in 2 h
+    ("flow-stiction-cycle", 10, 1, False),            # 15 in 1 h
+    ("flow-stiction-cycle", 1, 4, False),             # 22 in 1 h
+])
+def test_short_records_of_loads_keep_time_by_their_periods_and_valves_do_not(klass, seed, index,
+                                                                          steady):
+    """Loops of the realistic benchmark's development and study seeds with too
+    few crossings for a wander. The periodic loads on healthy valves, which
+    the valve signature called sticky, vary their periods about as little
+    as the noise's reading of a clock, and read linear-oscillation; sticky
+    valves' limit cycles vary theirs over twice as much and keep their verdict."""
+    from valvediag import classify_loop
+    from valvediag.synth.cases import benchmark_rng, draw_loop
+
+    loop = draw_loop(klass, benchmark_rng(klass, seed, index))
+    d = classify_loop(loop.pv, loop.op, loop.sp, sample_time=loop.sample_time,
+                      process_type=loop.process_type)
+    pw = d.evidence["phase_wander"]
+    assert pw["wander"] is None and not pw["keeps_clock"], pw
+    if steady:
+        assert pw["jitter_ratio"] <= CLOCK_JITTER, pw
+        assert d.verdict == "linear-oscillation" and "periods' jitter" in d.reason, d.reason
+    else:
+        assert pw["jitter_ratio"] > 1.5 * CLOCK_JITTER, pw
+        assert d.verdict == "stiction", d.reason
+
+
+def test_a_limit_cycle_whose_noise_was_added_afterwards_keeps_time_but_a_level_is_read_as_ever():
+    """The paper's experiment, as its scenarios are drawn here, adds the PV's
+    noise and the controller's answer to it after the simulation: the noise
+    never moves the valve, and a sticky valve's limit cycle keeps a clock's
+    time over the 20 cycles recorded. On an integrating loop the periods are
+    not read as a load's, and the Backlash Index names the valve as before."""
+    from valvediag import classify_loop
+    from valvediag.paper.scenarios import draw_cases, record
+
+    rng = np.random.default_rng(5)
+    reads = []
+    for c in draw_cases("stiction", 6, seed=77, cycles=20):
+        pv, op, h = record(c, 20, 1.0, rng)
+        pw = phase_wander(pv, detect_oscillation(pv, h), op)
+        if pw.steady_periods:
+            reads.append(classify_loop(pv, op, sample_time=h, process_type="integrating"))
+    assert len(reads) >= 3
+    assert all(d.verdict == "stiction" for d in reads), [d.reason for d in reads]

@@ -263,7 +263,11 @@ def _scan(pv, op, sp, mv=None):
 def test_the_scan_reads_the_registrys_valve_position_tag():
     n = 7200
     t = np.arange(n) * H
-    load = 4.0 * 2 / np.pi * np.arcsin(np.sin(2 * np.pi * t / 300.0))
+    # a triangular load whose periods vary by 2 % (another loop's cycle): no
+    # clock's steady timing names it
+    ends = np.cumsum(300.0 * (1.0 + 0.02 * np.random.default_rng(1).standard_normal(n)))
+    phase = np.interp(t, np.r_[0.0, ends], np.arange(n + 1.0))
+    load = 4.0 * 2 / np.pi * np.arcsin(np.sin(2 * np.pi * phase))
     pv, op, sp, mv = _flow_loop("linear", None, load, n)
     without, with_position = _scan(pv, op, sp), _scan(pv, op, sp, mv)
     # the PV and OP alone show a sticky valve's picture; the position clears the valve

@@ -1102,14 +1102,25 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     # a record cut by gaps pools the stretches' crossings: timed from the
     # first sample given, not the first usable one
     common["clock"] = replace(clock, times=clock.times + a * h)
-    if clock.keeps_clock and not (travel is not None and travel.fault):
+    # too few cycles for the wander: on a self-regulating loop, whose valve
+    # signature a periodic load deceives, periods as steady as the noise's
+    # reading of a clock are a load's too
+    steady = selfreg and clock.steady_periods
+    if (clock.keeps_clock or steady) and not (travel is not None and travel.fault):
         # a valve's limit cycle is the loop's own oscillation: noise moves its
         # phase for good. One that keeps a clock's time is driven from outside
+        why = clock.reason if clock.keeps_clock else (
+            f"the oscillation keeps time like a clock over {np.size(clock.times)} crossings: "
+            f"its periods vary {clock.jitter_ratio:.2f} times as much as the PV's noise alone "
+            "makes a steady clock's read, where the noise that the controller answers would "
+            "move a sticky valve's slips as well")
         return verdict(
             "linear-oscillation", c_data * proc_conf * 0.85,
-            f"{clock.reason}: a periodic load from outside the loop (a timer, a machine, a "
-            "batch step) drives it, not the valve, whose own limit cycle would wander with "
-            "the noise; trace the disturbance; method: the phase's wander over the cycles",
+            f"{why}: a periodic load from outside the loop (a timer, a machine, a batch step) "
+            "drives it, not the valve, whose own limit cycle would wander with the noise; "
+            "trace the disturbance; method: "
+            + ("the phase's wander over the cycles" if clock.keeps_clock
+               else "the periods' jitter against the PV's noise"),
             process_screen=pscreen, shape=shape, **common)
     if s_ab is not None and bool(np.all(np.isfinite(s_ab))) and not (
             travel is not None and travel.fault):
