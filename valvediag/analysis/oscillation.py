@@ -56,11 +56,11 @@ CLOCK_SHARE = 0.1
 #: makes a steady clock's periods read (:func:`phase_wander`): about 1 for a
 #: clock, 2 and more for a limit cycle whose phase the noise moves.
 CLOCK_JITTER = 1.5
-#: ... read over at least this many crossings (four periods), where the
-#: smoothed PV takes at least this many samples to cross its hysteresis band:
-#: a crossing read between two samples either side of a jump places it by
-#: the noise alone, whatever the jump's own timing.
+#: ... read over at least this many crossings (four periods),
 MIN_JITTER_CROSSINGS = 5
+#: ... where the smoothed PV takes at least this many samples to cross its
+#: hysteresis band [samples]: a crossing read between two samples either side
+#: of a jump places it by the noise alone, whatever the jump's own timing.
 CROSSING_SAMPLES = 2.0
 #: Least standard deviation of the periods [samples]: steadier periods
 #: carry no noise to read.
