@@ -25,7 +25,11 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    A swing that keeps a clock's time, read before any valve method
    (:func:`~valvediag.analysis.oscillation.phase_wander`: a valve's limit
    cycle is the loop's own, and its phase wanders with the noise; a load
-   driven from outside keeps its phase), a sinusoidal PV, an OP that stands
+   driven from outside keeps its phase; on a self-regulating process with
+   too few cycles for the wander, periods that vary no more than the PV's
+   noise makes a steady clock's read,
+   :attr:`~valvediag.analysis.oscillation.PhaseWander.steady_periods`), a
+   sinusoidal PV, an OP that stands
    still, a valve position implied by
    the PV that follows the OP (:func:`follows_op`), or cycles whose
    amplitude wanders as a noise-driven resonance's does
