@@ -68,19 +68,25 @@ def test_no_reading_from_too_few_cycles_no_noise_or_noise_the_loop_never_saw():
 
 def test_a_short_snapshot_keeps_time_by_its_periods_and_a_limit_cycle_does_not():
     # 35 cycles: too few for a random walk's wander to show, but a clock's
-    # periods vary only by the noise's reading of its crossings, and a limit
-    # cycle's by more (1 % of a period at random here, about 2.6 times the
-    # reading's 0.2 samples)
+    # periods vary only by the reading of its crossings (the noise's 0.14
+    # samples, and a tick anywhere within TICK_WIDTH of a sample), and a
+    # limit cycle's by more (1.5 % of a period at random here, 0.9 samples)
     rng = np.random.default_rng(0)
     k = np.arange(int(P * (MIN_CROSSINGS - 5)))
     clock = _read(*_swing(k / P, rng))
-    ends = np.cumsum(P * (1.0 + 0.01 * rng.standard_normal(60)))
+    ends = np.cumsum(P * (1.0 + 0.015 * rng.standard_normal(60)))
     walk = _read(*_swing(np.interp(k, np.r_[0.0, ends], np.arange(61.0)), rng))
+    # a clock whose ticks fall on a grid of half a sample, as a load that
+    # the control system moves at its scan does
+    ticks = np.ceil(np.arange(61) * (P + 0.37) * 2.0) / 2.0
+    grid = _read(*_swing(np.interp(k, ticks, np.arange(61.0)), rng))
     assert MIN_JITTER_CROSSINGS <= clock.crossings < MIN_CROSSINGS
     assert MIN_JITTER_CROSSINGS <= walk.crossings < MIN_CROSSINGS
     assert np.isnan(clock.wander) and np.isnan(walk.wander)
-    # about 1 for a clock (0.74-1.16 over twelve draws), 2.2-3.2 for this walk
-    assert clock.steady_periods and 0.6 <= clock.jitter_ratio <= 1.3 < CLOCK_JITTER
+    # over twelve draws: 0.53-0.82 for the clock read without a tick's
+    # spread, 0.68-1.11 for the one on the grid, 2.3-3.1 for this walk
+    assert clock.steady_periods and 0.5 <= clock.jitter_ratio <= 1.0
+    assert grid.steady_periods and 0.6 <= grid.jitter_ratio <= 1.3 < CLOCK_JITTER
     assert not walk.steady_periods and walk.jitter_ratio > 2.0
     # the wander's own reading needs more crossings
     assert not clock.keeps_clock and not walk.keeps_clock
@@ -183,6 +189,9 @@ def test_the_stretches_of_a_record_cut_by_gaps_are_read_on_one_clock():
     ("temperature-linear-disturbance", 2, 13, True),  # a triangular load, 5 in 1 h
     ("flow-linear-disturbance", 1, 12, True),         # a clipped sine, 14 in 2 h
     ("flow-linear-disturbance", 1, 0, True),          # a sine, 26 in 2 h
+    # a square load whose moves fall on the simulation's steps of half a
+    # sample: 22 crossings in 2 h, its periods 2.1 times the noise's reading
+    ("temperature-linear-disturbance", 11, 2, True),
     ("temperature-stiction-cycle", 10, 3, False),     # 9 crossings in 2 h
     ("flow-stiction-cycle", 12, 3, False),            # 38 in 2 h
 ])

@@ -1115,8 +1115,9 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         # phase for good. One that keeps a clock's time is driven from outside
         why = clock.reason if clock.keeps_clock else (
             f"the oscillation keeps time like a clock over {np.size(clock.times)} crossings: "
-            f"its periods vary {clock.jitter_ratio:.2f} times as much as the PV's noise alone "
-            "makes a steady clock's read, where the noise that the controller answers would "
+            f"its periods vary {clock.jitter_ratio:.2f} times as much as the PV's noise and "
+            "the time grid make a steady clock's read, where the noise that the controller "
+            "answers would "
             "move a sticky valve's slips as well")
         return verdict(
             "linear-oscillation", c_data * proc_conf * 0.85,

@@ -58,6 +58,13 @@ CLOCK_SHARE = 0.1
 CLOCK_JITTER = 1.5
 #: ... read over at least this many crossings (four periods),
 MIN_JITTER_CROSSINGS = 5
+#: ... and beside the noise's reading, a clock's tick placed anywhere within
+#: this share of a sample [samples]: a load moves at the control system's
+#: scan, and the historian stamps each sample at its poll, whatever the noise.
+#: Half a sample: a controller that runs at twice its record's rate, as the
+#: realistic benchmark's do; a whole sample's spread read two sticky flow
+#: cycles of its study seeds 17-26 at 1.32 and 1.37.
+TICK_WIDTH = 0.5
 #: ... where the smoothed PV takes at least this many samples to cross its
 #: hysteresis band [samples]: a crossing read between two samples either side
 #: of a jump places it by the noise alone, whatever the jump's own timing.
@@ -681,8 +688,8 @@ class PhaseWander:
     jitter_ratio : float
         Over fewer crossings than :data:`MIN_CROSSINGS`, the standard
         deviation of the periods over that of a steady clock's periods read
-        through the PV's white noise [-]: about 1 for a clock; NaN where not
-        read.
+        through the PV's white noise and the time grid
+        (:data:`TICK_WIDTH`) [-]: about 1 for a clock; NaN where not read.
     times : numpy.ndarray
         Crossing times [s from the record's start].
     readable : bool
@@ -847,8 +854,14 @@ def phase_wander(pv, osc: Oscillation, op=None) -> PhaseWander:
     alone (``jitter_ratio``, ``steady_periods``): smoothed over ``w``
     samples, the PV's white noise ``sigma`` reads each crossing of a steady
     clock within ``sigma / (sqrt(w) s)`` samples, ``s`` the smoothed slope
-    there, and its periods, each between two such readings, vary by
-    ``sqrt(2)`` times that. A limit cycle's periods vary more: the same
+    there. Beside the noise, a clock's tick falls anywhere within
+    :data:`TICK_WIDTH` of a sample (a uniform spread of ``TICK_WIDTH /
+    sqrt(12)``): a load moves at the control system's scan, and a historian
+    stamps each sample at its poll, whatever the noise; a square load at 2 s
+    whose moves fell on its simulation's steps of 1 s (study seed 11, #2)
+    read 2.10 by the noise alone, 0.97 with the spread. The periods, each
+    between two such readings, vary by ``sqrt(2)`` times their combined
+    spread. A limit cycle's periods vary more: the same
     noise, through the controller's proportional action, moves the OP's
     approach to each slip or turn, by a time that the smoothing does not
     shorten. The ratio of the two is read over :data:`MIN_JITTER_CROSSINGS`
@@ -865,16 +878,19 @@ def phase_wander(pv, osc: Oscillation, op=None) -> PhaseWander:
     to it, were added after its simulation (the paper's experiment as
     :func:`valvediag.paper.scenarios.record` draws it) keeps a clock's time
     whatever its valve does: 8 of 12 sticky and 12 of 12 loose valves' cycles
-    drawn from the paper's ranges, at 20 samples a period, read 0.3-1.
+    drawn from the paper's ranges, at 20 samples a period, read 0.3-1 by the
+    noise alone.
     :func:`~valvediag.analysis.classify.classify_loop` reads steady periods
     as a load's on self-regulating loops, where the valve signature cannot
     tell a periodic load from a sticky valve. On the realistic benchmark's
     development seeds 1-2 (20 loops a class) and study seeds 10-26 (4 a
     class), the sticky and loose valves' limit cycles on self-regulating
-    loops read 2.09 and up (68 read), on levels 1.61 and up (126); the
-    healthy flows and temperatures under periodic loads 0.30 and up, 42 of
-    the 49 read at most 1.5 (the 14 that the valve methods had called
-    faulty among them, at 0.54-1.40).
+    loops read 1.81 and up (68 read) but for one sticky flow at 1.21 that
+    the valve signature read as linear too, on levels 1.34 and up (126);
+    the healthy flows and temperatures under periodic loads 0.28 and up,
+    44 of the 49 read at most 1.5; the 15 loads that the valve methods had
+    called faulty (slow loads on levels of no known type, read as
+    self-regulating, among them) read 0.39-1.37.
 
     References
     ----------
@@ -940,8 +956,11 @@ def phase_wander(pv, osc: Oscillation, op=None) -> PhaseWander:
         if (unread is None and not by_exception and n >= MIN_JITTER_CROSSINGS
                 and 2.0 * band >= CROSSING_SAMPLES * slope):
             # the smoothing over w samples leaves sqrt(w) less of the noise at
-            # each crossing; a steady clock's periods differ by two crossings'
-            common["jitter_ratio"] = float(np.std(d) / (np.sqrt(2.0 / w) * q))
+            # each crossing, beside which the tick falls anywhere within
+            # TICK_WIDTH of a sample; a steady clock's periods differ by two
+            # crossings'
+            read = q * q / w + TICK_WIDTH ** 2 / 12.0
+            common["jitter_ratio"] = float(np.std(d) / np.sqrt(2.0 * read))
         return PhaseWander(False, few if k.size < MIN_CROSSINGS else
                            f"{n} upward crossings in a run of like cycles, fewer than "
                            f"{MIN_CROSSINGS}", readable=unread is None, **common)
