@@ -70,11 +70,11 @@ def test_a_short_snapshot_keeps_time_by_its_periods_and_a_limit_cycle_does_not()
     # 35 cycles: too few for a random walk's wander to show, but a clock's
     # periods vary only by the reading of its crossings (the noise's 0.14
     # samples, and a tick anywhere within TICK_WIDTH of a sample), and a
-    # limit cycle's by more (1.5 % of a period at random here, 0.9 samples)
+    # limit cycle's by more (1 % of a period at random here, 0.6 samples)
     rng = np.random.default_rng(0)
     k = np.arange(int(P * (MIN_CROSSINGS - 5)))
     clock = _read(*_swing(k / P, rng))
-    ends = np.cumsum(P * (1.0 + 0.015 * rng.standard_normal(60)))
+    ends = np.cumsum(P * (1.0 + 0.01 * rng.standard_normal(60)))
     walk = _read(*_swing(np.interp(k, np.r_[0.0, ends], np.arange(61.0)), rng))
     # a clock whose ticks fall on a grid of half a sample, as a load that
     # the control system moves at its scan does
@@ -84,10 +84,11 @@ def test_a_short_snapshot_keeps_time_by_its_periods_and_a_limit_cycle_does_not()
     assert MIN_JITTER_CROSSINGS <= walk.crossings < MIN_CROSSINGS
     assert np.isnan(clock.wander) and np.isnan(walk.wander)
     # over twelve draws: 0.53-0.82 for the clock read without a tick's
-    # spread, 0.68-1.11 for the one on the grid, 2.3-3.1 for this walk
+    # spread, 0.68-1.11 for the one on the grid, 1.6-2.2 for this walk
+    # (2.2-3.2 against the noise alone: the tick's spread narrows the margin)
     assert clock.steady_periods and 0.5 <= clock.jitter_ratio <= 1.0
     assert grid.steady_periods and 0.6 <= grid.jitter_ratio <= 1.3 < CLOCK_JITTER
-    assert not walk.steady_periods and walk.jitter_ratio > 2.0
+    assert not walk.steady_periods and walk.jitter_ratio > CLOCK_JITTER
     # the wander's own reading needs more crossings
     assert not clock.keeps_clock and not walk.keeps_clock
     assert clock.as_dict()["jitter_ratio"] == round(clock.jitter_ratio, 3)
