@@ -27,7 +27,7 @@ One-loop classifier: what, if anything, is wrong with this loop's valve?
    cycle is the loop's own, and its phase wanders with the noise; a load
    driven from outside keeps its phase; on a self-regulating process with
    too few cycles for the wander, periods that vary no more than the PV's
-   noise makes a steady clock's read,
+   noise and the time grid make a steady clock's read,
    :attr:`~valvediag.analysis.oscillation.PhaseWander.steady_periods`), a
    sinusoidal PV, an OP that stands
    still, a valve position implied by
@@ -1117,8 +1117,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             f"the oscillation keeps time like a clock over {np.size(clock.times)} crossings: "
             f"its periods vary {clock.jitter_ratio:.2f} times as much as the PV's noise and "
             "the time grid make a steady clock's read, where the noise that the controller "
-            "answers would "
-            "move a sticky valve's slips as well")
+            "answers would move a sticky valve's slips as well")
         return verdict(
             "linear-oscillation", c_data * proc_conf * 0.85,
             f"{why}: a periodic load from outside the loop (a timer, a machine, a batch step) "

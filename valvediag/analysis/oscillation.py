@@ -717,7 +717,7 @@ class PhaseWander:
     def steady_periods(self) -> bool:
         """Over fewer crossings than a wander is read from, the periods vary
         at most :data:`CLOCK_JITTER` times as much as a steady clock's read
-        through the PV's noise (``jitter_ratio``)."""
+        through the PV's noise and the time grid (``jitter_ratio``)."""
         return bool(np.isfinite(self.jitter_ratio) and self.jitter_ratio <= CLOCK_JITTER)
 
     def as_dict(self) -> dict:
@@ -851,7 +851,7 @@ def phase_wander(pv, osc: Oscillation, op=None) -> PhaseWander:
     Fewer crossings than :data:`MIN_CROSSINGS` (a short snapshot, or a slow
     swing over a day) hold too few cycles for a random walk to show, and the
     wander is not read. Their periods are read instead against the noise
-    alone (``jitter_ratio``, ``steady_periods``): smoothed over ``w``
+    and the time grid (``jitter_ratio``, ``steady_periods``): smoothed over ``w``
     samples, the PV's white noise ``sigma`` reads each crossing of a steady
     clock within ``sigma / (sqrt(w) s)`` samples, ``s`` the smoothed slope
     there. Beside the noise, a clock's tick falls anywhere within
