@@ -852,7 +852,7 @@ def test_a_sticky_cycle_that_a_linear_valve_behind_a_dead_time_nearly_follows_is
     from valvediag.analysis.oscillation import detect_oscillation
     from valvediag.synth.cases import benchmark_rng, draw_loop
 
-    # realistic benchmark draws: a linear valve behind a dead time of 15-80 s
+    # realistic benchmark draws: a linear valve behind a long dead time
     # follows the square PV to R2 0.96-0.97, so a sticky valve can add under
     # 0.03 however much of the rest it explains (61-82 % of the linear
     # valve's held-out error, with a slip jump that beats a dead band by
