@@ -112,7 +112,7 @@ from .oscillation import (Oscillation, PhaseWander, detect_oscillation, phase_wa
 from .quality import (bridge_short_gaps, despike, drawn_lines, longest_run, record_quantum,
                       stored_points, white_noise_std)
 from .reversals import ReversalRests, reversal_rests
-from .signature import (KIND_SHARE, MIN_SLIPS, SENSE_SKEW, SIGNATURE_LIMITS, ValveSignature,
+from .signature import (KIND_SHARE, MIN_SLIPS, SENSE_SKEW, ValveSignature,
                         controller_lag, cycle_transitions, horch_correlation,
                         stick_slip_events, valve_signature)
 from .travel import ValveTravel, valve_travel
@@ -319,10 +319,7 @@ def dead_response(pv, op, sp=None) -> str:
 
 def _self_regulating_verdict(verdict, x, u, h, osc, src, c_data, ev, **kw):
     """Verdict on an oscillating self-regulating loop, from the valve signature."""
-    # (where the registry does not name the type, the loads' shape was read as
-    # a flow's on what may be a level: the signature asks for the level's share)
-    sig = valve_signature(x, u, h, process="self-regulating", period=osc.period,
-                          least_gain=None if src == "loop registry" else SIGNATURE_LIMITS["gain"])
+    sig = valve_signature(x, u, h, process="self-regulating", period=osc.period)
     horch = horch_correlation(x, u, h, osc.period)
     ev.update(signature=sig.as_dict(), horch_ratio=horch)
     where = f"on a self-regulating process ({src})"

@@ -418,8 +418,7 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
         nonlinearity must remove [-]. By default ``SIGNATURE_LIMITS['gain']``,
         and ``SIGNATURE_LIMITS['gain_self_regulating']`` for a valve with a
         slip jump on a self-regulating process; a caller that has not read the
-        loads' shape (a process type that is only a data test's guess) gives
-        the former.
+        loads' shape may give the former.
 
     Returns
     -------
