@@ -159,7 +159,10 @@ class ValveSignature:
         best valve with a slip jump [-]; positive favours stiction.
     S, J : float
         Stick band and slip jump of the best nonlinear valve [OP unit]; for a
-        dead band ``J = 0`` and ``S`` is its width.
+        dead band ``J = 0`` and ``S`` is its width. The best on the training
+        blocks, but where that is a dead band and the held-out blocks prefer
+        the best valve with a slip jump by ``SIGNATURE_LIMITS['kind_gain']``,
+        that valve.
     noise_band : float
         OP noise band not counted as a reversal [OP unit].
     dead_time, lag : float
@@ -676,7 +679,16 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
                 ref_j.append(r * f * s0)
     ref_s, ref_j, ref_p = np.array(ref_s), np.array(ref_j), sorted(ref_p)
     cand = cand.join(_Candidates(ref_s, ref_j, ref_p, *fit_valves(ref_s, ref_j, ref_p)))
+    # stiction against backlash: the best of each family on the training blocks,
+    # compared on the held-out ones; where the best valve of all on the
+    # training blocks is a dead band and the held-out blocks prefer a slip
+    # jump, the valve with the slip jump stands (the kind is a held-out reading)
+    ib = cand.best((cand.J == 0) & (cand.S > 0))
+    ij = cand.best(cand.J > 0)
+    kind_gain = 1.0 - cand.test[ij] / cand.test[ib] if cand.test[ib] > 0 else 0.0
     ibest = cand.best(np.ones(cand.S.size, bool))
+    if cand.J[ibest] == 0 and cand.S[ibest] > 0 and kind_gain >= SIGNATURE_LIMITS["kind_gain"]:
+        ibest = ij
     S, J = float(cand.S[ibest]), float(cand.J[ibest])
     gain = 1.0 - cand.test[ibest] / tel[il] if tel[il] > 0 else 0.0
     r2_val = 1.0 - cand.test[ibest] / scorer.var_test
@@ -684,10 +696,6 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     # all but the measurement noise
     floor = (cand.test[ibest] / max(int(scorer.test.sum()), 1) / y_noise ** 2
              if y_noise > 0 else math.inf)
-    # stiction against backlash: the best of each family on the training blocks
-    ib = cand.best((cand.J == 0) & (cand.S > 0))
-    ij = cand.best(cand.J > 0)
-    kind_gain = 1.0 - cand.test[ij] / cand.test[ib] if cand.test[ib] > 0 else 0.0
     # what the PV says the valve did, in OP units, for the plot
     d_b, tau_b = cand.pair[ibest]
     bb = cand.b[ibest]
