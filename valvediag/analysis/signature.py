@@ -393,8 +393,7 @@ class _Candidates:
 
 
 def valve_signature(pv, op, sample_time: float, *, process: str, period: float = math.nan,
-                    max_samples: int = MAX_SAMPLES,
-                    least_gain: float | None = None) -> ValveSignature:
+                    max_samples: int = MAX_SAMPLES) -> ValveSignature:
     """Read the valve's behaviour back from the PV: linear, sticky or loose.
 
     Parameters
@@ -416,12 +415,6 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
         sample wide, and resampling would smear it), unless that stretch holds
         fewer than :data:`SIGNATURE_PERIODS` periods of a known cycle (see
         Notes).
-    least_gain : float, optional
-        Least share of the linear valve's held-out error that a valve
-        nonlinearity must remove [-]. By default ``SIGNATURE_LIMITS['gain']``,
-        and ``SIGNATURE_LIMITS['gain_self_regulating']`` for a valve with a
-        slip jump on a self-regulating process; a caller that has not read the
-        loads' shape may give the former.
 
     Returns
     -------
@@ -726,9 +719,9 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     # closely, and leaves little R2 for any valve to add
     matters = (r2_val - r2_lin >= lim["r2_gain"] or floor <= lim["noise_floor"]
                or (slip and process == "self-regulating"))
-    if least_gain is None:
-        least_gain = lim["gain_self_regulating"] if process == "self-regulating" and slip \
-            else lim["gain"]
+    # least share of the linear valve's held-out error a nonlinearity removes
+    least_gain = lim["gain_self_regulating"] if process == "self-regulating" and slip \
+        else lim["gain"]
     if gain < least_gain or r2_val < lim["r2"] or not matters \
             or S < lim["band_over_noise"] * band:
         why = (f"the valve follows the OP: a sticky or loose valve removes {100 * gain:.0f}% of a "
