@@ -5,25 +5,27 @@ matplotlib.use("Agg")
 import numpy as np
 import pytest
 
-from valvediag.analysis.bumps import (BUMP_Z, MIN_BUMPS_AGAINST, SCREEN_SHIFT_MAX, SCREEN_STEPS,
-                                     setpoint_bumps, setpoint_process_screen)
+from valvediag.analysis.bumps import (BUMP_Z, MIN_BUMPS_AGAINST, MIN_SIDE, SCREEN_SHIFT_MAX,
+                                     SCREEN_STEPS, setpoint_bumps, setpoint_process_screen)
 from valvediag.analysis.classify import classify_loop
+from valvediag.analysis.quality import white_noise_std
 from valvediag.models.closedloop import simulate_loop
 from valvediag.analysis.signature import loop_sense
 from valvediag.synth.cases import alternating_steps, benchmark_rng, draw_loop
 
 
-def p_only_level(seed, valve, valve_params=None, sense=1.0, h=5.0, n=17_280, tau=300.0):
+def p_only_level(seed, valve, valve_params=None, sense=1.0, h=5.0, n=17_280, tau=300.0,
+                 size=(2.0, 4.0), noise=0.05):
     """A day of a proportional-only level under a wandering load, with set-point steps."""
     rng = np.random.default_rng(seed)
-    sp = alternating_steps(rng, n, every_s=(1500.0, 3000.0), size=(2.0, 4.0), sample_time=h)
+    sp = alternating_steps(rng, n, every_s=(1500.0, 3000.0), size=size, sample_time=h)
     t = np.arange(n) * h
     knots = np.arange(0.0, n * h + 901.0, 900.0)
     load = np.interp(t, knots, np.cumsum(rng.normal(0.0, 0.8, knots.size)))
     r = simulate_loop(kc=1.5 * sense, ti=1e12, sample_time=h, n_samples=n, process="integrating",
                       process_gain=sense, tau=tau, valve=valve, valve_params=valve_params,
                       sp=50.0, load=50.0 * sense, load_profile=load * sense, sp_profile=sp,
-                      noise_std=0.05, seed=seed)
+                      noise_std=noise, seed=seed)
     return r.pv, r.op, r.sp, h
 
 
@@ -61,6 +63,39 @@ def test_a_level_whose_valve_follows_answers_every_setpoint_kick(seed, sense):
     assert b.steps >= 30
     assert b.against == 0 and not b.found
     assert b.answered == b.steps and np.all(b.z >= BUMP_Z)
+
+
+@pytest.mark.parametrize("valve, params", [("linear", None), ("kano", {"S": 4.0, "J": 2.0})])
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_setpoint_steps_smaller_than_the_pvs_noise_are_read(seed, valve, params):
+    """An entered set point stands still between the operator's moves, so each
+    of its moves is a step, however small against the PV's noise: steps of
+    1.2-2.2 % under 0.8 % of noise (three standard deviations 2.4 %) kick the
+    OP by 1.8-3.3 %. Each is read, and a valve that follows its OP is not read
+    against any of them."""
+    pv, op, sp, h = p_only_level(seed, valve, params, size=(1.2, 2.2), noise=0.8)
+    d = np.abs(np.diff(sp))
+    moves = np.flatnonzero(d) + 1
+    assert moves.size >= 30 and d.max() < 3.0 * white_noise_std(pv)
+    b = setpoint_bumps(pv, op, sp, h)
+    # all but a step within MIN_SIDE samples of the record's end
+    assert b.steps == np.count_nonzero(moves <= sp.size - MIN_SIDE)
+    if valve == "linear":
+        assert b.against == 0 and not b.found
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_setpoint_step_averaged_over_a_sample_is_one_step(seed):
+    """An export of 15 s means: a step that falls within a mean moves the set
+    point at two samples running, and is read as one step."""
+    pv, op, sp, h = p_only_level(seed, "linear", size=(1.2, 2.2), noise=0.8)
+    pv, op, sp = (x.reshape(-1, 3).mean(axis=1) for x in (pv, op, sp))
+    split = np.flatnonzero(np.diff(np.flatnonzero(np.diff(sp))) == 1)
+    assert split.size >= 10
+    b = setpoint_bumps(pv, op, sp, 3 * h)
+    steps = np.flatnonzero(np.diff(p_only_level(seed, "linear", size=(1.2, 2.2))[2]))
+    assert b.steps == np.count_nonzero(steps < 3 * (sp.size - MIN_SIDE))
+    assert b.against == 0 and not b.found
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

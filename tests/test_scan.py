@@ -1075,6 +1075,23 @@ def test_a_levels_kinks_are_counted_over_the_stretches_of_a_record_cut_by_gaps()
     assert "pooled over the record's stretches" in r.reason
 
 
+def test_a_gap_cut_levels_steps_against_its_kicks_count_over_its_stretches():
+    # the same draw and gaps: each stretch reads its set-point steps, and at
+    # one of them the level went against the OP's kick; the rest read a gain
+    # (a slipping valve's) by which the longest stretch's kinks looked
+    # followed. Counted over the stretches, as over a gap-free day, the steps
+    # went against the kicks three times: that gain clears no kink
+    from valvediag.synth.cases import benchmark_rng, draw_loop
+
+    klass = "level-stiction-events"
+    loop = draw_loop(klass, benchmark_rng(klass, 13, 1))
+    t = np.arange(loop.pv.size) * loop.sample_time
+    keep = _outside_three_gaps(t, np.random.default_rng([13, 1, 7]), t[-1])
+    r = _scan_rows_kept(loop, keep, "integrating")
+    assert r.verdict == "stiction", r.reason
+    assert "went against the OP's kick at 3 set-point steps" in r.reason
+
+
 @pytest.mark.parametrize("klass, seed, index, verdict", [
     ("level-stiction-cycle", 14, 3, "stiction"),
     ("level-stiction-sawtooth", 13, 2, "stiction"),

@@ -59,6 +59,10 @@ MIN_BUMPS_AGAINST = 2
 KICK_HELD = 0.5
 #: Fewest samples either side of a step.
 MIN_SIDE = 8
+#: Largest share of samples at which a set point moves for it to be read as
+#: entered, every move of it a step: an operator's set point moves a few
+#: tens of times a day, a cascade's or a measured one at nearly every sample.
+ENTERED_SHARE = 0.05
 #: The stretch read either side of a step is at most this many times the
 #: level's half-time after its steps (the median time for the control error
 #: to fall to half its size after a step): the OP's integral over many of the
@@ -150,13 +154,29 @@ def _isolated_steps(sp: np.ndarray, noise: float, side: int):
     """The set point's steps: all of them, and the isolated ones with their neighbours.
 
     A step is a move of more than three noise standard deviations of the PV
-    between two samples; it is isolated where ``side`` samples or more
+    between two samples, or any move of a set point that is entered: one
+    that stands still at all but :data:`ENTERED_SHARE` of its samples (the
+    operator's moves, each a step however small against the PV's noise,
+    kick the OP by the controller's gain times the move, read against the
+    OP's noise, not the PV's). Two moves at samples running, and no third,
+    are one step (a step averaged over a sample), at the first. It is
+    isolated where ``side`` samples or more
     separate it from the steps either side (a cascade's set point, moving at
     every sample, has none). Returns ``(jumps, steps, before, after)``: the
     first sample after every step, the isolated ones, and for each of those
     the previous step's sample (-1 for none) and the next one's (the record's
     length for none)."""
-    jumps = np.flatnonzero(np.abs(np.diff(sp)) > 3.0 * noise) + 1
+    d = np.abs(np.diff(sp))
+    thr = 3.0 * noise
+    if d.size and np.count_nonzero(d > 0) <= ENTERED_SHARE * d.size:
+        thr = min(thr, 1e-9 * (1.0 + float(np.nanmax(np.abs(sp)))))
+    jumps = np.flatnonzero(d > thr) + 1
+    if jumps.size > 1:
+        # a step averaged over a sample (an export of means) moves the set
+        # point at two samples running: it is one step, at the first
+        start = np.r_[True, np.diff(jumps) > 1]
+        run = np.cumsum(start) - 1
+        jumps = jumps[start | (np.bincount(run)[run] != 2)]
     prev = np.r_[-1, jumps[:-1]]
     nxt = np.r_[jumps[1:], sp.size]
     isolated = (jumps - prev - 1 >= side) & (nxt - jumps >= side)
@@ -305,7 +325,9 @@ def setpoint_bumps(pv, op, sp, sample_time: float, *, sense: float | None = None
     Notes
     -----
     A step is a set-point move of more than three noise standard deviations
-    of the PV between two samples. Over the stretch around it (at most
+    of the PV between two samples, or any move of a set point that stands
+    still at all but :data:`ENTERED_SHARE` of its samples (an entered one).
+    Over the stretch around it (at most
     ``half_window_s`` either side, and at most :data:`RESPONSE_WINDOWS`
     times the level's half-time after its steps (:func:`step_half_time`),
     not reaching the neighbouring steps, at least :data:`MIN_SIDE` samples

@@ -103,7 +103,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .bi import THRESHOLDS, BacklashIndex, backlash_index, lagged_turns
-from .bumps import (SLIP_OVER_FOLLOWING, kinks_over_following, setpoint_bumps,
+from .bumps import (SLIP_OVER_FOLLOWING, SetPointBumps, kinks_over_following, setpoint_bumps,
                     setpoint_process_screen)
 from .linearity import (CycleShape, away_share, cycle_shape, mean_cycles, move_onset,
                         rest_share)
@@ -402,6 +402,15 @@ class LoopDiagnosis:
         The valve's rests at the OP's reversals, wherever they were read,
         fault or not: a record cut by gaps pools them
         (:func:`~valvediag.analysis.reversals.pooled_reversal_rests`).
+    followed : tuple of valvediag.analysis.signature.StickSlipEvents
+        A level's kinks that the set-point steps' gain explained as a
+        following valve's (:func:`~valvediag.analysis.bumps.kinks_over_following`),
+        left out of ``events``.
+    bumps : valvediag.analysis.bumps.SetPointBumps or None
+        The level's set-point steps read as bump tests, where read. A record
+        cut by gaps counts the steps its level went against over all its
+        stretches: where they make a fault, the gain its steps read is a
+        slipping valve's, and the kinks in ``followed`` are pooled too.
     pv, op : numpy.ndarray
         The analysed stretch of data.
     sample_time : float
@@ -426,6 +435,8 @@ class LoopDiagnosis:
     clock: PhaseWander | None = field(default=None, repr=False)
     events: tuple = field(default=(), repr=False)
     rests: ReversalRests | None = field(default=None, repr=False)
+    followed: tuple = field(default=(), repr=False)
+    bumps: SetPointBumps | None = field(default=None, repr=False)
     pv: np.ndarray = field(default=None, repr=False)
     op: np.ndarray = field(default=None, repr=False)
     sample_time: float = 1.0
@@ -755,13 +766,16 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
     travel = None
     coarse: list[str] = []     # why the PV's rounding hides a cycle's waveform
     events_read: dict = {}     # valve events read, by process type
+    followed_read: dict = {}   # a level's kinks its set-point steps explained
+    read: dict = {}            # what was read: valve events by process type, set-point steps
     rests_read: dict = {}      # the valve's rests at the OP's reversals, where read
 
     def verdict(v, conf, reason, **kw):
         out = dict(process_screen="metadata" if process_type != "unknown" else "unknown",
                    bi=np.nan, period=np.nan, amplitude=np.nan, cycles=0.0, regularity=np.nan,
                    travel=travel, events=tuple(events_read.values()),
-                   rests=rests_read.get("rests"))
+                   rests=rests_read.get("rests"), followed=tuple(followed_read.values()),
+                   bumps=read.get("bumps"))
         out.update(kw)
         if coarse and v in ("stiction", "backlash", "undecided") and not (
                 travel is not None and travel.fault):
@@ -867,7 +881,6 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                  f"the PV swings with its set point's steps ({osc.cycles:.0f} swings of about "
                  f"{osc.period:.0f} s), but its control error does not oscillate (regularity "
                  f"{in_error.regularity:.2f}): the PV follows the operator's moves")
-    read: dict = {}      # what was read: valve events by process type, set-point steps
 
     def level_bumps():
         """The level's set-point steps read as bump tests (once a record)."""
@@ -928,6 +941,7 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                 if ratio < SLIP_OVER_FOLLOWING and not bumps.found:
                     if slips.found:
                         ev["kinks_followed"] = dict(slips.as_dict(), ratio=round(ratio, 2))
+                    followed_read[kind] = slips
                     continue
                 checked = bumps.found or ratio >= SLIP_OVER_FOLLOWING
             level_unchecked = kind == "integrating" and not checked

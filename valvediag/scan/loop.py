@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..analysis.align import AlignedLoop, align_loop, median_spacing, to_epoch_us
+from ..analysis.bumps import MIN_BUMPS_AGAINST
 from ..analysis.classify import LAG_DOUBT, LoopDiagnosis, classify_loop
 from ..analysis.oscillation import (ACF_STRONG, MIN_CROSSINGS, PERIODIC_FRACTION_MIN, PhaseWander,
                                    detect_oscillation, pooled_phase_wander)
@@ -785,12 +786,17 @@ def _pooled_events(seg_diag, record_s: float, process_type: str):
     gap-free record's (:func:`~valvediag.analysis.signature.pooled_stick_slip_events`),
     a flow's jumps and a level's kinks apart. A level's kinks that a valve
     following the OP explains (read against each stretch's set-point steps)
-    are not counted, and a level's pooled kinks need the full rule's three:
-    two, which a snapshot allows, stand only where a stretch's own
-    set-point steps checked them."""
+    are not counted, unless the stretches' steps together found the level
+    going against the OP's kicks (at :data:`~valvediag.analysis.bumps.MIN_BUMPS_AGAINST`
+    steps or more, as a gap-free record's would): the gain those steps read
+    is then a slipping valve's, and explains nothing. A level's pooled
+    kinks need the full rule's three: two, which a snapshot allows, stand
+    only where a stretch's own set-point steps checked them."""
     quiet = [e for e in seg_diag if e[2].verdict in ("no-oscillation", "insufficient-data")]
+    against = sum(e[2].bumps.against for e in quiet if e[2].bumps is not None)
     for process in ("self-regulating", "integrating"):
-        read = [(e, r) for e in quiet for r in e[2].events
+        held = process == "integrating" and against >= MIN_BUMPS_AGAINST
+        read = [(e, r) for e in quiet for r in e[2].events + (e[2].followed if held else ())
                 if r.process == process and r.events > 0]
         readings = [r for _, r in read]
         if len(readings) < 2:
@@ -805,6 +811,10 @@ def _pooled_events(seg_diag, record_s: float, process_type: str):
             else "assumed"
         reason = (f"{pooled.what}: {pooled.reason} ({process} process, {src}); method: valve "
                   "events (slips and take-ups) pooled over the record's stretches")
+        if held and any(r is f for e, r in read for f in e[2].followed):
+            reason += (f"; over them the level went against the OP's kick at {against} "
+                       "set-point steps, so the gain the steps read is a slipping valve's, "
+                       "which clears no kink")
         return pooled.kind, pooled.confidence, reason, [e for e, _ in read], {}
     return None
 
