@@ -5,6 +5,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import datetime as dt
+import functools
 import json
 import math
 import shutil
@@ -1058,17 +1059,23 @@ def test_a_wandering_flow_is_not_bridged_over_long_gaps():
     assert r.verdict == "backlash", r.reason
 
 
-def test_a_levels_kinks_are_counted_over_the_stretches_of_a_record_cut_by_gaps():
-    # a sticky level without a cycle (the realistic benchmark's study draw
-    # 13-1) with three gaps of 10-30 minutes: each stretch holds too few of
-    # its kinks, the day holds enough (it read no-oscillation before)
+@functools.lru_cache(maxsize=1)
+def _gap_cut_sticky_level():
+    """A sticky level without a cycle (the realistic benchmark's study draw
+    13-1) with three gaps of 10-30 minutes, scanned as a level."""
     from valvediag.synth.cases import benchmark_rng, draw_loop
 
     klass = "level-stiction-events"
     loop = draw_loop(klass, benchmark_rng(klass, 13, 1))
     t = np.arange(loop.pv.size) * loop.sample_time
     keep = _outside_three_gaps(t, np.random.default_rng([13, 1, 7]), t[-1])
-    r = _scan_rows_kept(loop, keep, "integrating")
+    return _scan_rows_kept(loop, keep, "integrating")
+
+
+def test_a_levels_kinks_are_counted_over_the_stretches_of_a_record_cut_by_gaps():
+    # each stretch holds too few of its kinks, the day holds enough (it read
+    # no-oscillation before)
+    r = _gap_cut_sticky_level()
     assert r.evidence["segments"] >= 3
     assert r.verdict == "stiction", r.reason
     assert "jumps of the slope of the PV are valve events" in r.reason
@@ -1076,18 +1083,12 @@ def test_a_levels_kinks_are_counted_over_the_stretches_of_a_record_cut_by_gaps()
 
 
 def test_a_gap_cut_levels_steps_against_its_kicks_count_over_its_stretches():
-    # the same draw and gaps: each stretch reads its set-point steps, and at
-    # one of them the level went against the OP's kick; the rest read a gain
-    # (a slipping valve's) by which the longest stretch's kinks looked
-    # followed. Counted over the stretches, as over a gap-free day, the steps
-    # went against the kicks three times: that gain clears no kink
-    from valvediag.synth.cases import benchmark_rng, draw_loop
-
-    klass = "level-stiction-events"
-    loop = draw_loop(klass, benchmark_rng(klass, 13, 1))
-    t = np.arange(loop.pv.size) * loop.sample_time
-    keep = _outside_three_gaps(t, np.random.default_rng([13, 1, 7]), t[-1])
-    r = _scan_rows_kept(loop, keep, "integrating")
+    # each stretch reads its set-point steps, and at one of them the level
+    # went against the OP's kick; the rest read a gain (a slipping valve's)
+    # by which the longest stretch's kinks looked followed. Counted over the
+    # stretches, as over a gap-free day, the steps went against the kicks
+    # three times: that gain clears no kink
+    r = _gap_cut_sticky_level()
     assert r.verdict == "stiction", r.reason
     assert "went against the OP's kick at 3 set-point steps" in r.reason
 
