@@ -160,17 +160,16 @@ def _isolated_steps(sp: np.ndarray, noise: float, side: int):
     kick the OP by the controller's gain times the move, read against the
     OP's noise, not the PV's). Two moves at samples running, and no third,
     are one step (a step averaged over a sample), at the first. It is
-    isolated where ``side`` samples or more
-    separate it from the steps either side (a cascade's set point, moving at
-    every sample, has none). Returns ``(jumps, steps, before, after)``: the
+    isolated where ``side`` samples or more separate it from the steps
+    either side (a cascade's set point, moving at every sample, has none).
+    Returns ``(jumps, steps, before, after)``: the
     first sample after every step, the isolated ones, and for each of those
     the previous step's sample (-1 for none) and the next one's (the record's
     length for none)."""
     d = np.abs(np.diff(sp))
-    thr = 3.0 * noise
-    if d.size and np.count_nonzero(d > 0) <= ENTERED_SHARE * d.size:
-        thr = min(thr, 1e-9 * (1.0 + float(np.nanmax(np.abs(sp)))))
-    jumps = np.flatnonzero(d > thr) + 1
+    moves = d > 0
+    entered = d.size and np.count_nonzero(moves) <= ENTERED_SHARE * d.size
+    jumps = np.flatnonzero(moves if entered else d > 3.0 * noise) + 1
     if jumps.size > 1:
         # a step averaged over a sample (an export of means) moves the set
         # point at two samples running: it is one step, at the first
