@@ -210,6 +210,7 @@ def _work(args):
     gaps = int(rest[4]) if len(rest) > 4 else 0
     export = rest[5] if len(rest) > 5 else None
     units = rest[6] if len(rest) > 6 else None
+    no_setpoint = bool(rest[7]) if len(rest) > 7 else False
     from valvediag.io.registry import LoopSpec
     from valvediag.scan import LoopJob, ScanConfig, analyse_loop
     from valvediag.synth.cases import benchmark_rng, draw_loop
@@ -231,7 +232,8 @@ def _work(args):
         loop = dataclasses.replace(loop, pv=np.round(loop.pv, pv_decimals),
                                    sp=np.round(loop.sp, pv_decimals))
     position = with_position and loop.mv is not None
-    spec = LoopSpec(loop=loop.name, pv_tag="PV", op_tag="OP", sp_tag="SP",
+    spec = LoopSpec(loop=loop.name, pv_tag="PV", op_tag="OP",
+                    sp_tag=None if no_setpoint else "SP",
                     mv_tag="MV" if position else None,
                     process_type=loop.process_type if known else "unknown",
                     span=100.0 if units in (None, "ma") else float("nan"),
@@ -239,6 +241,8 @@ def _work(args):
     end = T0 + dt.timedelta(seconds=loop.duration_s)
     job = LoopJob(spec=spec, start=end - dt.timedelta(hours=24), end=end, problems=())
     frames = _frames(loop, position)
+    if no_setpoint:
+        del frames["sp"]
     if gaps:
         frames = _cut_gaps(frames, loop.duration_s, gaps,
                            benchmark_rng(klass, seed, i, 7))
@@ -319,6 +323,9 @@ def main():
                     help="read every loop in other units: the PV in an engineering unit with "
                          "no span in the registry (eng), the OP in mA (ma), or every tag "
                          "normalised to zero mean and unit deviation (normalised)")
+    ap.add_argument("--no-setpoint", action="store_true",
+                    help="export every loop without its set point (PV and OP only, as some "
+                         "historian exports hold)")
     ap.add_argument("--seeds", default="", metavar="A-B",
                     help="draw the study seeds A to B (4 loops a class is usual) instead of "
                          "the named sets")
@@ -356,7 +363,7 @@ def main():
     all_rows = []
     for name, seed in seeds.items():
         jobs = [(k, i, seed, args.valve_position, False, args.op_door, args.pv_decimals,
-                 args.cascade, args.gaps, export, args.units)
+                 args.cascade, args.gaps, export, args.units, args.no_setpoint)
                 for k in classes for i in range(args.loops)]
         t0 = time.perf_counter()
         with ProcessPoolExecutor(max_workers=max(1, args.workers)) as ex:
@@ -378,6 +385,8 @@ def main():
                         + ("(a sample kept)" if export[0] == "keep" else "(averaged)"))
         if args.units:
             with_mv += f", in units {args.units}"
+        if args.no_setpoint:
+            with_mv += ", no set point exported"
         _report(rows, f"{name} set (seed {seed}{with_mv}), "
                       f"{time.perf_counter() - t0:.0f} s wall", details)
         if args.reverse_acting:

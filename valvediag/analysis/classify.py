@@ -112,6 +112,7 @@ from .oscillation import (Oscillation, PhaseWander, detect_oscillation, phase_wa
 from .quality import (bridge_short_gaps, despike, drawn_lines, longest_run, record_quantum,
                       stored_points, white_noise_std)
 from .reversals import ReversalRests, reversal_rests
+from .setpoint import infer_setpoint
 from .signature import (KIND_SHARE, MIN_SLIPS, SENSE_SKEW, ValveSignature,
                         controller_lag, cycle_transitions, horch_correlation,
                         stick_slip_events, valve_signature)
@@ -784,6 +785,11 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
             # is as sure as ever)
             reason += f"; but {coarse[0]}"
             conf *= COARSE_CONFIDENCE
+        read_back = ev.get("setpoint_inferred", {})
+        if read_back.get("read") and (v in ("stiction", "backlash", "undecided")
+                                      or ev.get("dead_response")):
+            reason += (f"; the set point was not exported: its {read_back['steps']} moves were "
+                       "read from the OP's kicks")
         doubt = ev.get("registry_doubt")
         if doubt:
             reason += (f"; but the loop registry names the process {process_type}, and "
@@ -817,6 +823,14 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                        f"only {b - a} consecutive usable samples (need at least {MIN_SAMPLES})")
     x, u = pv[a:b], op[a:b]
     drawn_ab = drawn[a:b] if drawn is not None and drawn[a:b].any() else None
+    if sp is None:
+        # an export without its set point: the steps are read back from the
+        # controller's kicks, so that a step's answer is not read as the valve's
+        inferred = infer_setpoint(x, u)
+        ev["setpoint_inferred"] = inferred.as_dict()
+        if inferred.sp is not None:
+            sp = np.full(pv.size, np.nan)
+            sp[a:b] = inferred.sp
     if mv is not None:
         m, _ = bridge_short_gaps(despike(mv)[0])
         if np.isfinite(m[a:b]).sum() >= MIN_SAMPLES:

@@ -1,0 +1,240 @@
+"""
+A set point the historian did not export, read back from the controller's kicks.
+
+Many readers of a loop need to know where its set point moved: a set-point
+step moves every valve, sticky or not, and the PV's answer to it (a flow's
+jump, a level's kink) is no valve event. Some exports hold only the PV and
+the OP. A controller whose proportional action acts on the control error
+(the standard and parallel PI forms) answers the PV's every move at once with
+``-Kc`` times it, and a set-point step with ``+Kc`` times the step, in the
+sample the step falls in, before the process has answered: a *kick*. So the
+OP's sample-to-sample moves less the controller's answer to the PV's moves
+are the set point's moves times ``Kc``, and where they stand out of the
+residual's noise they are its steps.
+
+:func:`infer_setpoint` reads the controller's gain as the least-squares slope
+of the OP's moves on the PV's (the PV's noise, which the controller answers
+and the process has not, dominates both), marks the samples whose residual
+exceeds :data:`KICK_Z` robust standard deviations as kicks, and steps a set
+point there by the residual over the gain.
+
+References
+----------
+.. [1] Åström, K. J., Hägglund, T. (2006). Advanced PID Control. ISA,
+   Research Triangle Park (set-point weighting and the proportional kick).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import median_filter
+
+from .bumps import ENTERED_SHARE
+from .quality import stored_points
+
+__all__ = ["InferredSetPoint", "infer_setpoint", "KICK_Z", "GAIN_Z"]
+
+#: A sample's OP move, less the controller's answer to the PV's move, is a
+#: set-point kick beyond this many robust standard deviations of the rest.
+KICK_Z = 6.0
+#: The controller's answer to the PV's moves must be read to this many
+#: standard errors for its kicks to be read at all.
+GAIN_Z = 5.0
+#: A floor on the residual's spread, as a share of the OP moves' robust
+#: standard deviation: a proportional-only controller recorded at its own
+#: scan answers the PV exactly, and rounding alone must not read as kicks.
+SPREAD_FLOOR = 0.05
+#: Samples of the running median the kicks stand out of.
+LOCAL = 11
+#: Least share of its samples an OP must keep to be read sample by sample:
+#: one stored by exception moves only now and then (as the OP skew's reading).
+OP_KEPT = 0.7
+
+
+def _robust_std(x: np.ndarray) -> float:
+    """1.4826 times the median absolute deviation from the median."""
+    return float(1.4826 * np.median(np.abs(x - np.median(x)))) if x.size else math.nan
+
+
+@dataclass(frozen=True)
+class InferredSetPoint:
+    """A set point read back from the OP's kicks.
+
+    Attributes
+    ----------
+    sp : numpy.ndarray or None
+        The set point at every sample [PV unit], or None where none could be
+        read (no controller answer to the PV, or kicks at too many samples).
+        Its level is the PV's median distance from its steps: where integral
+        action holds the PV at its set point it is the set point's, elsewhere
+        (proportional-only control stands off it) only its moves are right.
+    steps : numpy.ndarray
+        Samples at which it moved (the kick's sample).
+    gain : float
+        The controller's OP move per PV move read from the record (``-Kc``
+        for a controller that opposes the PV) [OP unit per PV unit].
+    gain_z : float
+        The gain over its standard error.
+    reason : str
+        One sentence.
+    pv, op : numpy.ndarray
+        The record read, for :meth:`plot`.
+    """
+
+    sp: np.ndarray | None = field(repr=False)
+    steps: np.ndarray = field(repr=False)
+    gain: float
+    gain_z: float
+    reason: str
+    pv: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    op: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+
+    def as_dict(self) -> dict:
+        """The figures as plain types."""
+        return {"read": self.sp is not None, "steps": int(self.steps.size),
+                "gain": round(self.gain, 4), "gain_z": round(self.gain_z, 1),
+                "reason": self.reason}
+
+    def plot(self, ax=None):
+        """The PV with the set point read back, and the kicks marked.
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        if ax is None:
+            import matplotlib.pyplot as plt
+            _, ax = plt.subplots()
+        k = np.arange(self.pv.size)
+        ax.plot(k, self.pv, lw=0.6, label="PV")
+        if self.sp is not None:
+            ax.plot(k, self.sp, lw=1.2, label="set point read from the OP's kicks")
+            ax.plot(self.steps, self.sp[self.steps], "v", ms=5)
+        ax.set_xlabel("sample")
+        ax.set_ylabel("PV unit")
+        ax.set_title(f"{self.steps.size} kicks; controller gain {self.gain:.3g} "
+                     f"({self.gain_z:.0f} SE)", fontsize=9)
+        ax.legend(fontsize=7)
+        return ax
+
+
+def infer_setpoint(pv, op) -> InferredSetPoint:
+    """Read a loop's set-point steps from the kicks of its controller's OP.
+
+    Parameters
+    ----------
+    pv, op : array_like, shape (n,)
+        One stretch of a loop in automatic, uniformly sampled [PV unit, OP
+        unit]; NaN marks missing samples.
+
+    Returns
+    -------
+    InferredSetPoint
+
+    Notes
+    -----
+    The controller's gain is the slope of the OP's moves on the PV's,
+    beside the PV's level (the integral action on the error while the set
+    point stands) and a constant, fitted twice by least squares (the second
+    time without the first's kicks). A kick is a residual beyond :data:`KICK_Z` robust standard
+    deviations (floored at :data:`SPREAD_FLOOR` of the OP moves'); the set
+    point steps there by the residual over the gain. Nothing is read where
+    the gain is not read to :data:`GAIN_Z` standard errors or where kicks
+    fall at more than :data:`~valvediag.analysis.bumps.ENTERED_SHARE` of the
+    samples (an operator enters a set point now and then; an OP stored by
+    exception moves only now and then too, and is no controller's answer
+    sample by sample).
+
+    It fails where the controller does not kick: proportional action on the
+    PV alone (I-PD), set-point weighting near zero, a set-point ramp or
+    filter. Those steps move the OP through the integral only, and the
+    PV's answer is then smooth, so little is lost. An operator's manual
+    moves of the OP read as kicks too; like a set-point step, they move
+    every valve and say nothing of it. A step smaller than the residual's
+    noise (a compressed PV's, whose recorded moves are not the ones the
+    controller answered) is not read. A set point with integral action
+    holds the PV there on average; without it (proportional only) the level
+    returned is off by the offset, and only the moves are right.
+
+    References
+    ----------
+    .. [1] Åström, K. J., Hägglund, T. (2006). Advanced PID Control. ISA.
+    """
+    y = np.asarray(pv, dtype=float).ravel()
+    u = np.asarray(op, dtype=float).ravel()
+    if y.size != u.size:
+        raise ValueError(f"pv has {y.size} samples but op has {u.size}")
+    empty = np.zeros(0, dtype=int)
+
+    def none(reason, gain=math.nan, z=math.nan):
+        return InferredSetPoint(sp=None, steps=empty, gain=gain, gain_z=z, reason=reason,
+                                pv=y, op=u)
+
+    if stored_points(u).size < OP_KEPT * u.size:
+        return none(f"the OP keeps fewer than {100 * OP_KEPT:.0f} % of its samples (stored by "
+                    "exception): its moves are not the controller's, sample by sample")
+    dy, du = np.diff(y), np.diff(u)
+    ok = np.isfinite(dy) & np.isfinite(du)
+    if ok.sum() < 8:
+        return none("too few samples to read the controller's answer to the PV")
+    floor = SPREAD_FLOOR * _robust_std(du[ok])
+    # the OP's move: the answer to the PV's move, the integral action on the
+    # error (the PV's level against the set point read so far) and the set
+    # point's kicks, which stand out of their neighbours' residuals (the
+    # integral action's answer to a step lasts; the kick is one sample's)
+    kicks = np.zeros(dy.size, bool)
+    path = np.zeros(y.size)
+    gain = z = math.nan
+    for _ in range(2):
+        # the error over the sample, as the integral sums it (trapezoid)
+        level = 0.5 * (y[:-1] + y[1:]) - path[1:]
+        level = level - np.nanmedian(level)
+        X = np.column_stack([dy, level, np.ones(dy.size)])
+        use = ok & ~kicks & np.isfinite(level)
+        if use.sum() < 8 or not float(dy[use] @ dy[use]) > 0:
+            return none("the PV does not move: no controller answer to read")
+        coef, *_ = np.linalg.lstsq(X[use], du[use], rcond=None)
+        res = du - X @ coef
+        dof = max(int(use.sum()) - 3, 1)
+        cov = np.linalg.pinv(X[use].T @ X[use]) * float(res[use] @ res[use]) / dof
+        gain = float(coef[0])
+        se = math.sqrt(max(float(cov[0, 0]), 0.0))
+        z = abs(gain) / se if se > 0 else math.inf
+        spike = res - median_filter(np.where(np.isfinite(res), res, 0.0), size=LOCAL,
+                                    mode="nearest")
+        spread = max(_robust_std(spike[use]), floor)
+        kicks = ok & np.isfinite(spike) & (np.abs(spike) > KICK_Z * spread)
+        # a run of kicks is one step, at its first sample, of its largest
+        # spike: the samples after a step carry the integral action's answer
+        # to the error the PV has not yet closed
+        first = kicks & ~np.r_[False, kicks[:-1]]
+        run = np.cumsum(first)
+        size = np.zeros(dy.size)
+        if kicks.any():
+            k = np.flatnonzero(kicks)
+            big = np.zeros(run.max() + 1)
+            np.maximum.at(big, run[k], np.abs(spike[k]))
+            sign = np.zeros(run.max() + 1)
+            sign[run[k][np.abs(spike[k]) == big[run[k]]]] = np.sign(
+                spike[k][np.abs(spike[k]) == big[run[k]]])
+            size[first] = big[run[first]] * sign[run[first]]
+        path = np.zeros(y.size)
+        if gain != 0:
+            path[1:] = np.cumsum(-size / gain)
+    if not z >= GAIN_Z:
+        return none(f"the OP does not answer the PV's moves clearly ({z:.1f} standard errors): "
+                    "no controller gain to read its kicks by", gain, z)
+    if first.sum() > ENTERED_SHARE * ok.sum():
+        return none(f"the OP jumps at {first.sum()} of {ok.sum()} samples, more than an "
+                    "operator's set-point moves: not read as kicks", gain, z)
+    if not first.any():
+        return none("no kick of the OP beyond its answer to the PV: the set point stood",
+                    gain, z)
+    steps = np.flatnonzero(first) + 1                    # the sample the kick lands on
+    level = float(np.nanmedian(y - path))
+    return InferredSetPoint(sp=level + path, steps=steps, gain=gain, gain_z=z,
+                            reason=f"{steps.size} set-point moves read from the OP's kicks "
+                                   f"(controller gain {-gain:.3g}, read to {z:.0f} standard "
+                                   "errors)", pv=y, op=u)
