@@ -44,7 +44,8 @@ loops are drawn as before.
 Usage: python benchmarks/bench_realistic.py [--loops N] [--set dev|dev2|heldout|all] [--workers W]
        [--classes C1,C2] [--misses] [--evidence FILE] [--valve-position]
        [--reverse-acting] [--op-door DEV] [--pv-decimals N] [--cascade] [--gaps N]
-       [--export keep:S|average:S] [--units eng|ma|normalised] [--seeds A-B]
+       [--export keep:S|average:S] [--units eng|ma|normalised] [--no-setpoint]
+       [--seeds A-B]
 
 ``--valve-position`` gives the scan each loop's valve position as a
 positioner would report it (``SynthLoop.mv``: the simulated position with

@@ -16,6 +16,8 @@ One loop, pure numerics: arrays in, frozen results out.
   events without a limit cycle, Horch's cross-correlation test.
 * :mod:`~valvediag.analysis.bumps`: a level's set-point steps read as bump
   tests of its valve.
+* :mod:`~valvediag.analysis.setpoint`: a set point the export did not hold,
+  read back from the controller's kicks.
 * :mod:`~valvediag.analysis.travel`: a recorded valve position read against
   the OP (follows, lags and jumps, lags without a jump).
 * :mod:`~valvediag.analysis.classify`: one verdict for one record.

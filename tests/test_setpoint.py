@@ -1,0 +1,82 @@
+"""A set point read back from the controller's kicks (valvediag.analysis.setpoint)."""
+import numpy as np
+import pytest
+
+from valvediag.analysis import classify_loop
+from valvediag.analysis.setpoint import infer_setpoint
+from valvediag.models import simulate_loop
+from valvediag.synth.cases import alternating_steps
+from valvediag.synth.plant import exception_deadband
+
+
+def _loop(process, kc, ti, seed, n=6000, noise=0.05, tau=20.0):
+    """A linear valve's loop under operator set-point steps, recorded at its scan."""
+    rng = np.random.default_rng(seed)
+    steps = alternating_steps(rng, n, every_s=(600.0, 1200.0), size=(1.0, 3.0))
+    sim = simulate_loop(kc=kc, ti=ti, sample_time=1.0, n_samples=n, process=process, tau=tau,
+                        sp=50.0, load=50.0 if process == "integrating" else 0.0,
+                        sp_profile=steps, noise_std=noise, seed=seed)
+    return sim.pv, sim.op, sim.sp
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("process,kc,ti", [("self-regulating", 0.5, 15.0),
+                                           ("integrating", 1.5, 1e12),
+                                           ("integrating", 2.0, 300.0)])
+def test_the_set_points_steps_are_read_where_and_as_large_as_they_were(process, kc, ti, seed):
+    pv, op, sp = _loop(process, kc, ti, seed)
+    true = np.flatnonzero(np.diff(sp) != 0) + 1
+    assert true.size >= 4
+    got = infer_setpoint(pv, op)
+    assert got.sp is not None, got.reason
+    np.testing.assert_array_equal(got.steps, true)
+    # each move within 5 % of the step (the kick less the noise's share)
+    np.testing.assert_allclose(np.diff(got.sp)[true - 1], np.diff(sp)[true - 1], rtol=0.05)
+    # the controller's gain, OP per PV move, opposes the PV
+    assert got.gain == pytest.approx(-kc, rel=0.05)
+
+
+def test_a_set_point_that_stood_is_not_read():
+    rng = np.random.default_rng(3)
+    n = 4000
+    sim = simulate_loop(kc=0.5, ti=15.0, sample_time=1.0, n_samples=n, process="self-regulating",
+                        tau=20.0, sp=50.0, noise_std=0.05, seed=3,
+                        load_profile=np.cumsum(rng.normal(0, 0.02, n)))
+    got = infer_setpoint(sim.pv, sim.op)
+    assert got.sp is None and got.steps.size == 0
+    assert "stood" in got.reason
+
+
+def test_an_op_stored_by_exception_is_not_read_as_kicks():
+    pv, op, _ = _loop("self-regulating", 0.5, 15.0, 4)
+    t = np.arange(op.size, dtype=float)
+    keep = np.flatnonzero(exception_deadband(op, 0.3))
+    got = infer_setpoint(pv, np.interp(t, keep, op[keep]))
+    assert got.sp is None
+    assert "exception" in got.reason
+
+
+@pytest.mark.parametrize("seed", [5, 6, 7, 8])
+def test_a_level_without_its_set_point_reads_its_steps_back(seed):
+    """A healthy P-only level stepped by its operator, exported without the
+    set point: its steps are read back, and its valve is not called faulty."""
+    pv, op, sp = _loop("integrating", 1.5, 1e12, seed, n=14400, noise=0.03, tau=200.0)
+    d = classify_loop(pv, op, None, sample_time=1.0, process_type="integrating")
+    read = d.evidence["setpoint_inferred"]
+    assert read["read"] and read["steps"] == np.count_nonzero(np.diff(sp))
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+
+
+@pytest.mark.parametrize("klass,index", [("level-healthy", 3), ("level-healthy", 4),
+                                         ("flow-healthy", 9)])
+def test_healthy_valves_exported_without_their_set_point_are_not_called_sticky(klass, index):
+    """Realistic benchmark draws (development seed 1) exported without their
+    set point: read without the steps, their answers to them read as slips
+    (``stiction``); read back from the OP's kicks, they are not."""
+    from valvediag.synth.cases import benchmark_rng, draw_loop
+
+    loop = draw_loop(klass, benchmark_rng(klass, 1, index))
+    d = classify_loop(loop.pv, loop.op, None, sample_time=loop.sample_time,
+                      process_type=loop.process_type)
+    assert d.evidence["setpoint_inferred"]["read"]
+    assert d.verdict == "no-oscillation", d.reason
