@@ -138,14 +138,18 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
     The controller's gain is the slope of the OP's moves on the PV's,
     beside the PV's level (the integral action on the error while the set
     point stands) and a constant, fitted twice by least squares (the second
-    time without the first's kicks). A kick is a residual beyond :data:`KICK_Z` robust standard
-    deviations (floored at :data:`SPREAD_FLOOR` of the OP moves'); the set
-    point steps there by the residual over the gain. Nothing is read where
-    the gain is not read to :data:`GAIN_Z` standard errors or where kicks
-    fall at more than :data:`~valvediag.analysis.bumps.ENTERED_SHARE` of the
-    samples (an operator enters a set point now and then; an OP stored by
-    exception moves only now and then too, and is no controller's answer
-    sample by sample).
+    time without the first's kicks and with the error read against the set
+    point they make). A kick is a residual that stands out of its
+    neighbours' running median (:data:`LOCAL` samples) by more than
+    :data:`KICK_Z` robust standard deviations (floored at
+    :data:`SPREAD_FLOOR` of the OP moves'); a run of them is one step, at its
+    first sample, of its largest residual over the gain. Nothing is read where
+    the OP keeps fewer than :data:`OP_KEPT` of its samples, the gain is not
+    read to :data:`GAIN_Z` standard errors, or steps fall at more than
+    :data:`~valvediag.analysis.bumps.ENTERED_SHARE` of the samples (an
+    operator enters a set point now and then; an OP stored by exception
+    moves only now and then, and is no controller's answer sample by
+    sample).
 
     It fails where the controller does not kick: proportional action on the
     PV alone (I-PD), set-point weighting near zero, a set-point ramp or
