@@ -518,7 +518,8 @@ def test_a_level_of_no_known_type_is_called_by_kinks_its_set_point_steps_checked
     a flow the record shows nothing. Read as a level's,
     its kinks are slips, and the set-point steps read as bump tests clear
     them of a valve that follows its OP: the scan calls the valve sticky.
-    Without a set point, nothing checks the kinks, and they are not read."""
+    Exported without its set point, the steps are read back from the OP's
+    kicks, every one of them, and check the kinks as well."""
     from valvediag.analysis.bumps import SLIP_OVER_FOLLOWING
     from valvediag.synth.cases import benchmark_rng, draw_loop
 
@@ -531,7 +532,8 @@ def test_a_level_of_no_known_type_is_called_by_kinks_its_set_point_steps_checked
     assert bumps["found"] or bumps["kinks_over_following"] >= SLIP_OVER_FOLLOWING
     d = classify_loop(loop.pv, loop.op, None, sample_time=loop.sample_time,
                       process_type="unknown")
-    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+    assert d.evidence["setpoint_inferred"]["steps"] == np.count_nonzero(np.diff(loop.sp))
+    assert d.verdict == "stiction" and "read from the OP's kicks" in d.reason, d.reason
 
 
 def test_a_level_of_no_known_type_whose_kinks_nothing_checked_is_not_called():

@@ -48,6 +48,8 @@ GAIN_Z = 5.0
 SPREAD_FLOOR = 0.05
 #: Samples of the running median the kicks stand out of.
 LOCAL = 11
+#: Samples over which the residual's spread is also read nearby.
+SPREAD_LOCAL = 61
 #: Least share of its samples an OP must keep to be read sample by sample:
 #: one stored by exception moves only now and then (as the OP skew's reading).
 OP_KEPT = 0.7
@@ -141,8 +143,9 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
     time without the first's kicks and with the error read against the set
     point they make). A kick is a residual that stands out of its
     neighbours' running median (:data:`LOCAL` samples) by more than
-    :data:`KICK_Z` robust standard deviations (floored at
-    :data:`SPREAD_FLOOR` of the OP moves'); a run of them is one step, at its
+    :data:`KICK_Z` robust standard deviations, of the whole record's and of
+    its own :data:`SPREAD_LOCAL` samples' (floored at :data:`SPREAD_FLOOR`
+    of the OP moves'); a run of them is one step, at its
     first sample, of its largest residual over the gain. Nothing is read where
     the OP keeps fewer than :data:`OP_KEPT` of its samples, the gain is not
     read to :data:`GAIN_Z` standard errors, or steps fall at more than
@@ -209,7 +212,12 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
         spike = res - median_filter(np.where(np.isfinite(res), res, 0.0), size=LOCAL,
                                     mode="nearest")
         spread = max(_robust_std(spike[use]), floor)
-        kicks = ok & np.isfinite(spike) & (np.abs(spike) > KICK_Z * spread)
+        # read against the residual's own spread nearby too: a stretch the
+        # model does not fit (a loop in manual for the rest of the day, whose
+        # OP answers nothing) must not set the scale for the rest
+        size_abs = np.abs(np.where(np.isfinite(spike), spike, 0.0))
+        near = 1.4826 * median_filter(size_abs, size=SPREAD_LOCAL, mode="nearest")
+        kicks = ok & np.isfinite(spike) & (np.abs(spike) > KICK_Z * np.maximum(near, spread))
         # a run of kicks is one step, at its first sample, of its largest
         # spike: the samples after a step carry the integral action's answer
         # to the error the PV has not yet closed
