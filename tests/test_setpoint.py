@@ -80,3 +80,31 @@ def test_healthy_valves_exported_without_their_set_point_are_not_called_sticky(k
                       process_type=loop.process_type)
     assert d.evidence["setpoint_inferred"]["read"]
     assert d.verdict == "no-oscillation", d.reason
+
+
+def test_records_with_nothing_to_read_say_why():
+    pv, op, _ = _loop("self-regulating", 0.5, 15.0, 0)
+    assert "standing still" in infer_setpoint(pv, np.full(pv.size, 40.0)).reason
+    assert "does not move" in infer_setpoint(np.full(pv.size, 40.0), op).reason
+    assert "too few" in infer_setpoint(pv[:5], op[:5]).reason
+    with pytest.raises(ValueError, match="pv has"):
+        infer_setpoint(pv, op[:-1])
+    # missing samples are skipped, and the steps still read
+    pv, op = pv.copy(), op.copy()
+    pv[100:110], op[500] = np.nan, np.nan
+    got = infer_setpoint(pv, op)
+    assert got.sp is not None and np.all(np.isfinite(got.sp))
+
+
+def test_the_read_back_set_point_plots():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pv, op, _ = _loop("integrating", 1.5, 1e12, 1)
+    got = infer_setpoint(pv, op)
+    fig, ax = plt.subplots()
+    assert got.plot(ax) is ax
+    assert len(ax.lines) == 3 and "kicks" in ax.get_title()
+    plt.close(fig)

@@ -181,7 +181,8 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
 
     if stored_points(u).size < OP_KEPT * u.size:
         return none(f"the OP keeps fewer than {100 * OP_KEPT:.0f} % of its samples (stored by "
-                    "exception): its moves are not the controller's, sample by sample")
+                    "exception, or standing still): its moves are not the controller's, "
+                    "sample by sample")
     dy, du = np.diff(y), np.diff(u)
     ok = np.isfinite(dy) & np.isfinite(du)
     if ok.sum() < 8:
@@ -208,7 +209,7 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
         cov = np.linalg.pinv(X[use].T @ X[use]) * float(res[use] @ res[use]) / dof
         gain = float(coef[0])
         se = math.sqrt(max(float(cov[0, 0]), 0.0))
-        z = abs(gain) / se if se > 0 else math.inf
+        z = abs(gain) / se if se > 0 else (math.inf if gain != 0 else 0.0)
         spike = res - median_filter(np.where(np.isfinite(res), res, 0.0), size=LOCAL,
                                     mode="nearest")
         spread = max(_robust_std(spike[use]), floor)
