@@ -156,7 +156,12 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
 
     It fails where the controller does not kick: proportional action on the
     PV alone (I-PD), set-point weighting near zero, a set-point ramp or
-    filter. Those steps move the OP through the integral only, and the
+    filter. Derivative action is not modelled: on the error, it kicks the
+    OP further for a sample or a few, which reads a step in its place but
+    too large; on the PV, its answer to a sharp change of the PV's move (a
+    slip) may read as a kick and mask that slip. A regressor for it was
+    tried and dropped: on a fast PI flow sampled every 10 s it read three
+    kicks that were none. Those steps move the OP through the integral only, and the
     PV's answer is then smooth, so little is lost. An operator's manual
     moves of the OP read as kicks too; like a set-point step, they move
     every valve and say nothing of it. A step smaller than the residual's
