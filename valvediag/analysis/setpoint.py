@@ -145,7 +145,9 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
     neighbours' running median (:data:`LOCAL` samples) by more than
     :data:`KICK_Z` robust standard deviations, of the whole record's and of
     its own :data:`SPREAD_LOCAL` samples' (floored at :data:`SPREAD_FLOOR`
-    of the OP moves'); a run of them is one step, at its
+    of the OP moves') plus half the integral action on the PV's move in the
+    sample (the integral over a sample in which the PV jumped is read
+    between its ends, and may be off by that much); a run of them is one step, at its
     first sample, of its largest residual over the gain. Nothing is read where
     the OP keeps fewer than :data:`OP_KEPT` of its samples, the gain is not
     read to :data:`GAIN_Z` standard errors, or steps fall at more than
@@ -223,7 +225,12 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
         # OP answers nothing) must not set the scale for the rest
         size_abs = np.abs(np.where(np.isfinite(spike), spike, 0.0))
         near = 1.4826 * median_filter(size_abs, size=SPREAD_LOCAL, mode="nearest")
-        kicks = ok & np.isfinite(spike) & (np.abs(spike) > KICK_Z * np.maximum(near, spread))
+        # the integral action over a sample in which the PV moved is read
+        # between its ends; where the PV jumped (a load's step or a slip on a
+        # fast loop) it may be off by half the move's share
+        within = 0.5 * abs(float(coef[1])) * np.abs(np.where(ok, dy, 0.0))
+        kicks = ok & np.isfinite(spike) & (
+            np.abs(spike) > KICK_Z * np.maximum(near, spread) + within)
         # a run of kicks is one step, at its first sample, of its largest
         # spike: the samples after a step carry the integral action's answer
         # to the error the PV has not yet closed
