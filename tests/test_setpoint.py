@@ -85,7 +85,7 @@ def test_healthy_valves_exported_without_their_set_point_are_not_called_sticky(k
 def test_records_with_nothing_to_read_say_why():
     pv, op, _ = _loop("self-regulating", 0.5, 15.0, 0)
     assert "standing still" in infer_setpoint(pv, np.full(pv.size, 40.0)).reason
-    assert "does not move" in infer_setpoint(np.full(pv.size, 40.0), op).reason
+    assert "the PV keeps fewer" in infer_setpoint(np.full(pv.size, 40.0), op).reason
     assert "too few" in infer_setpoint(pv[:5], op[:5]).reason
     with pytest.raises(ValueError, match="pv has"):
         infer_setpoint(pv, op[:-1])
@@ -108,3 +108,17 @@ def test_the_read_back_set_point_plots():
     assert got.plot(ax) is ax
     assert len(ax.lines) == 3 and "kicks" in ax.get_title()
     plt.close(fig)
+
+
+def test_an_op_clipped_at_its_limit_reads_no_kicks():
+    """A level whose valve closes fully against a small inflow: the OP sits at
+    0 % for part of each cycle, and near it the controller's moves are cut
+    short between the samples recorded (realistic benchmark sawtooth, study
+    seed 17, which read 3,212 kicks where its set point never moved)."""
+    from valvediag.synth.cases import benchmark_rng, draw_loop
+
+    loop = draw_loop("level-stiction-sawtooth",
+                     benchmark_rng("level-stiction-sawtooth", 17, 2))
+    assert np.ptp(loop.sp) == 0 and np.mean(loop.op == 0.0) > 0.01
+    got = infer_setpoint(loop.pv, loop.op)
+    assert got.steps.size == 0, got.reason

@@ -50,8 +50,9 @@ SPREAD_FLOOR = 0.05
 LOCAL = 11
 #: Samples over which the residual's spread is also read nearby.
 SPREAD_LOCAL = 61
-#: Least share of its samples an OP must keep to be read sample by sample:
-#: one stored by exception moves only now and then (as the OP skew's reading).
+#: Least share of their samples the OP and the PV must keep to be read
+#: sample by sample: an OP stored by exception moves only now and then, a
+#: compressed PV's recorded moves are not those the controller answered.
 OP_KEPT = 0.7
 
 
@@ -149,7 +150,9 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
     sample (the integral over a sample in which the PV jumped is read
     between its ends, and may be off by that much); a run of them is one step, at its
     first sample, of its largest residual over the gain. Nothing is read where
-    the OP keeps fewer than :data:`OP_KEPT` of its samples, the gain is not
+    the OP or the PV keeps fewer than :data:`OP_KEPT` of its samples (a
+    record stored by exception or compressed, whose moves are not those the
+    controller answered), the gain is not
     read to :data:`GAIN_Z` standard errors, or steps fall at more than
     :data:`~valvediag.analysis.bumps.ENTERED_SHARE` of the samples (an
     operator enters a set point now and then; an OP stored by exception
@@ -186,12 +189,24 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
         return InferredSetPoint(sp=None, steps=empty, gain=gain, gain_z=z, reason=reason,
                                 pv=y, op=u)
 
-    if stored_points(u).size < OP_KEPT * u.size:
-        return none(f"the OP keeps fewer than {100 * OP_KEPT:.0f} % of its samples (stored by "
-                    "exception, or standing still): its moves are not the controller's, "
-                    "sample by sample")
+    for name, x in (("OP", u), ("PV", y)):
+        if stored_points(x).size < OP_KEPT * x.size:
+            return none(f"the {name} keeps fewer than {100 * OP_KEPT:.0f} % of its samples "
+                        "(stored by exception or compressed, or standing still): the moves "
+                        "recorded are not the ones the controller answered, sample by sample")
     dy, du = np.diff(y), np.diff(u)
-    ok = np.isfinite(dy) & np.isfinite(du)
+    # an OP at a limit it returns to (clipped: its extreme, held at more
+    # than one sample) answers nothing, and near it (within the kicks' own
+    # threshold of its moves) a move may have been cut short between the
+    # samples recorded; nor does an OP that stands still answer
+    finite = u[np.isfinite(u)]
+    near_limit = KICK_Z * _robust_std(du[np.isfinite(du)])
+    at = np.zeros(u.size, bool)
+    for end in (finite.min(), finite.max()) if finite.size else ():
+        if np.count_nonzero(finite == end) > 1:
+            at |= np.abs(u - end) <= near_limit
+    still = (du == 0) | at[:-1] | at[1:]
+    ok = np.isfinite(dy) & np.isfinite(du) & ~still
     if ok.sum() < 8:
         return none("too few samples to read the controller's answer to the PV")
     floor = SPREAD_FLOOR * _robust_std(du[ok])
