@@ -15,8 +15,8 @@ residual's noise they are its steps.
 :func:`infer_setpoint` reads the controller's gain as the least-squares slope
 of the OP's moves on the PV's (the PV's noise, which the controller answers
 and the process has not, dominates both), marks the samples whose residual
-exceeds :data:`KICK_Z` robust standard deviations as kicks, and steps a set
-point there by the residual over the gain.
+stands out of its neighbours' by :data:`KICK_Z` robust standard deviations
+as kicks, and steps a set point there by the residual over the gain.
 
 References
 ----------
@@ -250,16 +250,12 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
         # spike: the samples after a step carry the integral action's answer
         # to the error the PV has not yet closed
         first = kicks & ~np.r_[False, kicks[:-1]]
-        run = np.cumsum(first)
         size = np.zeros(dy.size)
         if kicks.any():
             k = np.flatnonzero(kicks)
-            big = np.zeros(run.max() + 1)
-            np.maximum.at(big, run[k], np.abs(spike[k]))
-            sign = np.zeros(run.max() + 1)
-            sign[run[k][np.abs(spike[k]) == big[run[k]]]] = np.sign(
-                spike[k][np.abs(spike[k]) == big[run[k]]])
-            size[first] = big[run[first]] * sign[run[first]]
+            run = np.cumsum(first)[k]                              # ascending, as k
+            by_run = k[np.lexsort((-np.abs(spike[k]), run))]      # largest first in each run
+            size[first] = spike[by_run[np.r_[True, np.diff(run) != 0]]]
         path = np.zeros(y.size)
         if gain != 0:
             path[1:] = np.cumsum(-size / gain)
