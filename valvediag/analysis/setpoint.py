@@ -215,8 +215,7 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
     # point's kicks, which stand out of their neighbours' residuals (the
     # integral action's answer to a step lasts; the kick is one sample's)
     kicks = np.zeros(dy.size, bool)
-    path = np.zeros(y.size)
-    gain = z = math.nan
+    path = np.zeros(y.size)               # the set point's moves read so far
     for _ in range(2):
         # the error over the sample, as the integral sums it (trapezoid)
         level = 0.5 * (y[:-1] + y[1:]) - path[1:]
@@ -269,8 +268,8 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
         return none("no kick of the OP beyond its answer to the PV: the set point stood",
                     gain, z)
     steps = np.flatnonzero(first) + 1                    # the sample the kick lands on
-    level = float(np.nanmedian(y - path))
-    return InferredSetPoint(sp=level + path, steps=steps, gain=gain, gain_z=z,
+    offset = float(np.nanmedian(y - path))
+    return InferredSetPoint(sp=offset + path, steps=steps, gain=gain, gain_z=z,
                             reason=f"{steps.size} set-point moves read from the OP's kicks "
                                    f"(controller gain {-gain:.3g}, read to {z:.0f} standard "
                                    "errors)", pv=y, op=u)
