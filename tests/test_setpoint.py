@@ -122,3 +122,36 @@ def test_an_op_clipped_at_its_limit_reads_no_kicks():
     assert np.ptp(loop.sp) == 0 and np.mean(loop.op == 0.0) > 0.01
     got = infer_setpoint(loop.pv, loop.op)
     assert got.steps.size == 0, got.reason
+
+
+@pytest.mark.parametrize("seed", [1, 3, 5])
+def test_a_dead_loop_whose_op_winds_up_to_its_limit_is_read_without_its_set_point(seed):
+    """A PV that does not answer (a valve stuck shut) under a PI controller:
+    the operator steps the set point to either side of it, and the OP winds
+    from limit to limit, held at 0 or 100 % for half the record. The samples
+    held at the limit are the limit's, not a historian's: the steps are read
+    back from the OP's kicks where it moved, and the loop is found dead
+    without its set point (before, the held samples read as a record stored
+    by exception, and the loop as `no-oscillation`)."""
+    rng = np.random.default_rng(seed)
+    n, h, kc, ti = 7200, 2.0, 0.6, 20.0
+    pv = 30.0 + rng.normal(0.0, 0.05, n)
+    ends = np.cumsum(rng.integers(300, 900, 24))
+    offset = rng.choice([-1.0, 1.0], ends.size) * rng.uniform(2.0, 5.0, ends.size)
+    sp = 30.0 + offset[np.searchsorted(ends, np.arange(n), side="right")]
+    e = sp - pv
+    # a PI controller whose integral stops at the OP's limits (anti-windup)
+    op, i_part = np.empty(n), 40.0
+    for k in range(n):
+        i_part += kc * e[k] * h / ti
+        op[k] = min(100.0, max(0.0, i_part + kc * e[k]))
+        i_part = op[k] - kc * e[k]
+    assert np.mean((op == 0.0) | (op == 100.0)) > 0.4, "the test's OP is not held at its limits"
+    got = infer_setpoint(pv, op)
+    assert got.sp is not None, got.reason
+    # the steps that fell while the OP moved between its limits, and no others
+    true = np.flatnonzero(np.diff(sp)) + 1
+    seen = {k for k in true if 0.0 < op[k - 1] < 100.0 and 0.0 < op[k] < 100.0}
+    assert seen and seen <= set(got.steps.tolist()) <= set(true.tolist())
+    d = classify_loop(pv, op, None, sample_time=h, process_type="self-regulating")
+    assert d.verdict == "insufficient-data" and "does not answer" in d.reason, d.reason

@@ -152,7 +152,9 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
     first sample, of its largest residual over the gain. Nothing is read where
     the OP or the PV keeps fewer than :data:`OP_KEPT` of its samples (a
     record stored by exception or compressed, whose moves are not those the
-    controller answered), the gain is not
+    controller answered; the OP's samples held at a limit it is clipped at
+    are the limit's, and the share is read over the rest: a dead loop's OP
+    winds from limit to limit and rests there), the gain is not
     read to :data:`GAIN_Z` standard errors, or steps fall at more than
     :data:`~valvediag.analysis.bumps.ENTERED_SHARE` of the samples (an
     operator enters a set point now and then; an OP stored by exception
@@ -189,22 +191,27 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
         return InferredSetPoint(sp=None, steps=empty, gain=gain, gain_z=z, reason=reason,
                                 pv=y, op=u)
 
-    for name, x in (("OP", u), ("PV", y)):
-        if stored_points(x).size < OP_KEPT * x.size:
+    # an OP held at a limit (clipped: its extreme, held at more than one
+    # sample) answers nothing; those samples are the limit's, not a
+    # historian's, and the share kept is read over the others
+    finite = u[np.isfinite(u)]
+    limits = [end for end in ((finite.min(), finite.max()) if finite.size else ())
+              if np.count_nonzero(finite == end) > 1]
+    held = np.isin(u, limits)
+    for name, x, off in (("OP", u, ~held), ("PV", y, np.ones(y.size, bool))):
+        kept = np.count_nonzero(off[stored_points(x)])
+        if kept < OP_KEPT * np.count_nonzero(off) or not off.any():
             return none(f"the {name} keeps fewer than {100 * OP_KEPT:.0f} % of its samples "
                         "(stored by exception or compressed, or standing still): the moves "
                         "recorded are not the ones the controller answered, sample by sample")
     dy, du = np.diff(y), np.diff(u)
-    # an OP at a limit it returns to (clipped: its extreme, held at more
-    # than one sample) answers nothing, and near it (within the kicks' own
-    # threshold of its moves) a move may have been cut short between the
-    # samples recorded; nor does an OP that stands still answer
-    finite = u[np.isfinite(u)]
+    # near a limit (within the kicks' own threshold of its moves) a move may
+    # have been cut short between the samples recorded; nor does an OP that
+    # stands still answer
     near_limit = KICK_Z * _robust_std(du[np.isfinite(du)])
     at = np.zeros(u.size, bool)
-    for end in (finite.min(), finite.max()) if finite.size else ():
-        if np.count_nonzero(finite == end) > 1:
-            at |= np.abs(u - end) <= near_limit
+    for end in limits:
+        at |= np.abs(u - end) <= near_limit
     still = (du == 0) | at[:-1] | at[1:]
     ok = np.isfinite(dy) & np.isfinite(du) & ~still
     if ok.sum() < 8:
