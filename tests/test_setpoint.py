@@ -36,15 +36,34 @@ def test_the_set_points_steps_are_read_where_and_as_large_as_they_were(process, 
     assert got.gain == pytest.approx(-kc, rel=0.05)
 
 
-def test_a_set_point_that_stood_is_not_read():
-    rng = np.random.default_rng(3)
+@pytest.mark.parametrize("seed", [3, 4])
+@pytest.mark.parametrize("process,kc,ti", [("self-regulating", 0.5, 15.0),
+                                           ("integrating", 2.0, 300.0),
+                                           ("self-regulating", 0.5, 1e12),
+                                           ("integrating", 1.5, 1e12)])
+def test_a_set_point_that_stood_is_read_where_the_integral_action_holds_the_pv(
+        process, kc, ti, seed):
+    """No kick: the set point stood. With integral action the OP drifts by
+    its gain times the PV's distance from the set point, which says where it
+    stood (the PV's mean is off it by the wander's share); a proportional-only
+    controller does not say, and nothing is read."""
+    rng = np.random.default_rng(seed)
     n = 4000
-    sim = simulate_loop(kc=0.5, ti=15.0, sample_time=1.0, n_samples=n, process="self-regulating",
-                        tau=20.0, sp=50.0, noise_std=0.05, seed=3,
+    sim = simulate_loop(kc=kc, ti=ti, sample_time=1.0, n_samples=n, process=process, tau=20.0,
+                        sp=47.3, noise_std=0.05, seed=seed,
+                        load=50.0 if process == "integrating" else 0.0,
                         load_profile=np.cumsum(rng.normal(0, 0.02, n)))
     got = infer_setpoint(sim.pv, sim.op)
-    assert got.sp is None and got.steps.size == 0
-    assert "stood" in got.reason
+    assert got.steps.size == 0 and "stood" in got.reason
+    if ti > 1e6:
+        assert got.sp is None
+    else:
+        assert got.sp is not None and np.ptp(got.sp) == 0
+        # within a tenth of the PV's noise
+        assert got.sp[0] == pytest.approx(47.3, abs=0.005)
+        # a direct-acting controller (the PV read upside down) as well
+        mirrored = infer_setpoint(100.0 - sim.pv, sim.op)
+        assert mirrored.sp is not None and mirrored.sp[0] == pytest.approx(52.7, abs=0.005)
 
 
 def test_an_op_stored_by_exception_is_not_read_as_kicks():
@@ -80,6 +99,24 @@ def test_healthy_valves_exported_without_their_set_point_are_not_called_sticky(k
                       process_type=loop.process_type)
     assert d.evidence["setpoint_inferred"]["read"]
     assert d.verdict == "no-oscillation", d.reason
+
+
+def test_a_pumped_level_exported_without_its_set_point_rests_where_its_integral_holds_it():
+    """Realistic benchmark draw (study seed 11, a level of no registered type
+    under a pump's square load): exported without its set point, the set
+    point that stood is read where the integral action holds the PV, and the
+    loop's rests at it with the OP still name the load, as with the set point
+    exported (without it, the valve signature read `stiction`)."""
+    from valvediag.synth.cases import benchmark_rng, draw_loop
+
+    klass = "level-linear-slow-load"
+    loop = draw_loop(klass, benchmark_rng(klass, 11, 2))
+    assert np.ptp(loop.sp) == 0
+    d = classify_loop(loop.pv, loop.op, None, sample_time=loop.sample_time,
+                      process_type="unknown")
+    read = d.evidence["setpoint_inferred"]
+    assert read["read"] and read["steps"] == 0
+    assert d.verdict == "linear-oscillation" and "rests at its set point" in d.reason, d.reason
 
 
 def test_records_with_nothing_to_read_say_why():

@@ -789,7 +789,9 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         if read_back.get("read") and (v in ("stiction", "backlash", "undecided")
                                       or ev.get("dead_response")):
             reason += (f"; the set point was not exported: its {read_back['steps']} moves were "
-                       "read from the OP's kicks")
+                       "read from the OP's kicks" if read_back["steps"] else
+                       "; the set point was not exported: it stood (no kick of the OP), where "
+                       "the integral action holds the PV")
         doubt = ev.get("registry_doubt")
         if doubt:
             reason += (f"; but the loop registry names the process {process_type}, and "

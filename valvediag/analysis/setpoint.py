@@ -17,6 +17,9 @@ of the OP's moves on the PV's (the PV's noise, which the controller answers
 and the process has not, dominates both), marks the samples whose residual
 stands out of its neighbours' by :data:`KICK_Z` robust standard deviations
 as kicks, and steps a set point there by the residual over the gain.
+Where no kick stands out, the set point stood; the integral action, which
+moves the OP by its gain times the PV's distance from the set point, says
+where.
 
 References
 ----------
@@ -50,6 +53,10 @@ SPREAD_FLOOR = 0.05
 LOCAL = 11
 #: Samples over which the residual's spread is also read nearby.
 SPREAD_LOCAL = 61
+#: Least spread of the integral action's share of the OP's moves, over the
+#: OP's spread, for the level at which it holds the PV to be read (a
+#: proportional-only controller has none to read).
+INTEGRAL_SHARE = 0.01
 #: Least share of their samples the OP and the PV must keep to be read
 #: sample by sample: an OP stored by exception moves only now and then, a
 #: compressed PV's recorded moves are not those the controller answered.
@@ -69,10 +76,13 @@ class InferredSetPoint:
     ----------
     sp : numpy.ndarray or None
         The set point at every sample [PV unit], or None where none could be
-        read (no controller answer to the PV, or kicks at too many samples).
-        Its level is the PV's median distance from its steps: where integral
-        action holds the PV at its set point it is the set point's, elsewhere
+        read (no controller answer to the PV, kicks at too many samples, or
+        no kick and no integral action to read). Where it stepped, its level
+        is the PV's median distance from its steps: where integral action
+        holds the PV at its set point it is the set point's, elsewhere
         (proportional-only control stands off it) only its moves are right.
+        Where it stood, its level is the one at which the integral action
+        holds the PV (the OP's drift against the PV's level).
     steps : numpy.ndarray
         Samples at which it moved (the kick's sample).
     gain : float
@@ -149,7 +159,10 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
     of the OP moves') plus half the integral action on the PV's move in the
     sample (the integral over a sample in which the PV jumped is read
     between its ends, and may be off by that much); a run of them is one step, at its
-    first sample, of its largest residual over the gain. Nothing is read where
+    first sample, of its largest residual over the gain. Where no kick stands
+    out, the set point stood, at the level where the fitted integral action
+    stops moving the OP, if that action is read to :data:`GAIN_Z` standard
+    errors and carries :data:`INTEGRAL_SHARE` of the OP's spread. Nothing is read where
     the OP or the PV keeps fewer than :data:`OP_KEPT` of its samples (a
     record stored by exception or compressed, whose moves are not those the
     controller answered; the OP's samples held at a limit it is clipped at
@@ -173,9 +186,11 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
     moves of the OP read as kicks too; like a set-point step, they move
     every valve and say nothing of it. A step smaller than the residual's
     noise (a compressed PV's, whose recorded moves are not the ones the
-    controller answered) is not read. A set point with integral action
-    holds the PV there on average; without it (proportional only) the level
-    returned is off by the offset, and only the moves are right.
+    controller answered) is not read; where none is read, the level said to
+    have stood is a mean of the levels the set point held. A set point with
+    integral action holds the PV there on average; without it (proportional
+    only) the level returned is off by the offset, and only the moves are
+    right.
 
     References
     ----------
@@ -226,7 +241,8 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
     for _ in range(2):
         # the error over the sample, as the integral sums it (trapezoid)
         level = 0.5 * (y[:-1] + y[1:]) - path[1:]
-        level = level - np.nanmedian(level)
+        centre = float(np.nanmedian(level))
+        level = level - centre
         X = np.column_stack([dy, level, np.ones(dy.size)])
         use = ok & ~kicks & np.isfinite(level)
         if use.sum() < 8 or not float(dy[use] @ dy[use]) > 0:
@@ -272,6 +288,21 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
         return none(f"the OP jumps at {first.sum()} of {ok.sum()} samples, more than an "
                     "operator's set-point moves: not read as kicks", gain, z)
     if not first.any():
+        # the integral action moves the OP by its gain times the PV's
+        # distance from the set point, the same way as the proportional
+        # action answers the PV's moves: where it is read clearly and carries
+        # a share of the OP's moves, the OP's drift against the PV's level
+        # says where the set point stood
+        ki, ki_se = float(coef[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
+        carried = np.cumsum(ki * np.where(np.isfinite(level), level, 0.0))
+        if (ki * gain > 0 and abs(ki) >= GAIN_Z * ki_se
+                and np.std(carried) >= INTEGRAL_SHARE * float(np.nanstd(u))):
+            stood = centre - float(coef[2]) / ki
+            return InferredSetPoint(
+                sp=np.full(y.size, stood), steps=empty, gain=gain, gain_z=z,
+                reason=(f"no kick of the OP beyond its answer to the PV: the set point stood, "
+                        f"at {stood:.4g}, where the integral action holds the PV (read to "
+                        f"{abs(ki) / ki_se:.0f} standard errors)"), pv=y, op=u)
         return none("no kick of the OP beyond its answer to the PV: the set point stood",
                     gain, z)
     steps = np.flatnonzero(first) + 1                    # the sample the kick lands on
