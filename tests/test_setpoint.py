@@ -145,6 +145,14 @@ def test_the_read_back_set_point_plots():
     assert got.plot(ax) is ax
     assert len(ax.lines) == 3 and "kicks" in ax.get_title()
     plt.close(fig)
+    # a set point that stood, read where the integral action holds the PV
+    pv, op, _ = _loop("self-regulating", 0.5, 15.0, 2, noise=0.05)
+    stood = infer_setpoint(pv[:500], op[:500])
+    assert stood.sp is not None and stood.steps.size == 0, stood.reason
+    fig, ax = plt.subplots()
+    stood.plot(ax)
+    assert "stood" in ax.get_legend().get_texts()[1].get_text()
+    plt.close(fig)
 
 
 def test_an_op_clipped_at_its_limit_reads_no_kicks():

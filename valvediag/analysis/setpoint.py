@@ -123,7 +123,9 @@ class InferredSetPoint:
         k = np.arange(self.pv.size)
         ax.plot(k, self.pv, lw=0.6, label="PV")
         if self.sp is not None:
-            ax.plot(k, self.sp, lw=1.2, label="set point read from the OP's kicks")
+            ax.plot(k, self.sp, lw=1.2,
+                    label="set point read from the OP's kicks" if self.steps.size else
+                    "set point that stood, where the integral action holds the PV")
             ax.plot(self.steps, self.sp[self.steps], "v", ms=5)
         ax.set_xlabel("sample")
         ax.set_ylabel("PV unit")
