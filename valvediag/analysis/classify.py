@@ -643,7 +643,11 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         loop's output), the oscillation is read in the control error
         ``PV - SP``: the PV follows the wander, which blurs the loop's own
         swing (``oscillation_read_in`` in the evidence). A step under that
-        limit, small against the noise, is read so too.
+        limit, small against the noise, is read so too. Without it, the set
+        point is read back from the OP
+        (:func:`~valvediag.analysis.setpoint.infer_setpoint`: its steps from
+        the controller's kicks, or, where it stood, its level from the
+        integral action; ``setpoint_inferred`` in the evidence).
     sample_time : float
         [s]
     process_type : {'unknown', 'integrating', 'self-regulating'}
