@@ -37,6 +37,27 @@ def test_the_set_points_steps_are_read_where_and_as_large_as_they_were(process, 
 
 
 @pytest.mark.parametrize("seed", [3, 4])
+def test_a_set_point_that_wanders_without_a_step_is_not_read_as_standing(seed):
+    """A cascade's inner loop: its set point, the outer loop's output,
+    wanders by a few percent over tens of minutes, each sample's move far
+    below a kick. No level stood; the fit's residual keeps the wander in its
+    slow part, and nothing is read (the same loop under a set point that
+    stood reads its level)."""
+    rng = np.random.default_rng(seed)
+    n = 7200
+    t = np.arange(n, dtype=float)
+    wander = 2.0 * np.sin(2 * np.pi * t / 1500.0) + 1.5 * np.sin(2 * np.pi * t / 4100.0 + 1.0)
+    load = np.cumsum(rng.normal(0, 0.02, n))
+    kw = dict(kc=0.5, ti=15.0, sample_time=1.0, n_samples=n, process="self-regulating",
+              tau=20.0, sp=47.3, noise_std=0.05, seed=seed, load_profile=load)
+    wandered = simulate_loop(sp_profile=wander, **kw)
+    got = infer_setpoint(wandered.pv, wandered.op)
+    assert got.sp is None and "wandered" in got.reason, got.reason
+    stood = simulate_loop(**kw)
+    assert infer_setpoint(stood.pv, stood.op).sp is not None
+
+
+@pytest.mark.parametrize("seed", [3, 4])
 @pytest.mark.parametrize("process,kc,ti", [("self-regulating", 0.5, 15.0),
                                            ("integrating", 2.0, 300.0),
                                            ("self-regulating", 0.5, 1e12),

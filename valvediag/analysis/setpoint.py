@@ -57,10 +57,36 @@ SPREAD_LOCAL = 61
 #: OP's spread, for the level at which it holds the PV to be read (a
 #: proportional-only controller has none to read).
 INTEGRAL_SHARE = 0.01
+#: Samples over which the fit's residual is averaged to see a set point
+#: that wandered without a step ...
+WANDER_BLOCK = 32
+#: ... and the largest share of its variance those means may hold for the
+#: set point to be read as having stood (white noise leaves 1/32 there; on
+#: the realistic benchmark's study seeds 10-13, 0.01-0.08 on records whose
+#: set point stood, 0.78-0.99 on cascades' inner loops).
+WANDER_SHARE = 0.25
 #: Least share of their samples the OP and the PV must keep to be read
 #: sample by sample: an OP stored by exception moves only now and then, a
 #: compressed PV's recorded moves are not those the controller answered.
 OP_KEPT = 0.7
+
+
+def _slow_share(r: np.ndarray, m: int) -> float:
+    """Share of the variance of ``r`` (NaN where not read) that lies in its
+    means over blocks of ``m`` samples; NaN with fewer than 4 blocks read in
+    a quarter or more. White noise leaves about ``1 / m`` there, a drift
+    nearly all."""
+    nb = r.size // m
+    if nb < 4:
+        return math.nan
+    blocks = r[:nb * m].reshape(nb, m)
+    count = np.isfinite(blocks).sum(axis=1)
+    full = count >= m // 4
+    if full.sum() < 4:
+        return math.nan
+    means = np.nansum(blocks[full], axis=1) / count[full]
+    spread = float(np.nanvar(r))
+    return float(np.var(means)) / spread if spread > 0 else math.nan
 
 
 def _robust_std(x: np.ndarray) -> float:
@@ -164,7 +190,11 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
     first sample, of its largest residual over the gain. Where no kick stands
     out, the set point stood, at the level where the fitted integral action
     stops moving the OP, if that action is read to :data:`GAIN_Z` standard
-    errors and carries :data:`INTEGRAL_SHARE` of the OP's spread. Nothing is read where
+    errors and carries :data:`INTEGRAL_SHARE` of the OP's spread, and the
+    fit's residual holds at most :data:`WANDER_SHARE` of its variance in its
+    :data:`WANDER_BLOCK`-sample means (a set point that wanders without a
+    step, as a cascade's inner loop's does, leaves its moves there, each
+    below a kick). Nothing is read where
     the OP or the PV keeps fewer than :data:`OP_KEPT` of its samples (a
     record stored by exception or compressed, whose moves are not those the
     controller answered; the OP's samples held at a limit it is clipped at
@@ -297,6 +327,15 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
         # says where the set point stood
         ki, ki_se = float(coef[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
         carried = np.cumsum(ki * np.where(np.isfinite(level), level, 0.0))
+        # a set point that wanders without a step (a cascade's inner loop
+        # follows its outer loop's output) is no level: its moves, each below
+        # a kick, leave the fit's residual slow
+        slow = _slow_share(np.where(use, res, np.nan), WANDER_BLOCK)
+        if slow > WANDER_SHARE:
+            return none(f"no kick of the OP beyond its answer to the PV, but "
+                        f"{100 * slow:.0f} % of the answer's residual lies in its "
+                        f"{WANDER_BLOCK}-sample means: the set point wandered without a step "
+                        "(a cascade's inner loop?)", gain, z)
         if (ki * gain > 0 and abs(ki) >= GAIN_Z * ki_se
                 and np.std(carried) >= INTEGRAL_SHARE * float(np.nanstd(u))):
             stood = centre - float(coef[2]) / ki
