@@ -377,3 +377,18 @@ def test_drawn_lines_keep_the_lines_longer_than_a_short_bridge():
     with pytest.raises(ValueError, match="drawn"):
         from valvediag import classify_loop
         classify_loop(np.zeros(100), np.zeros(100), sample_time=1.0, drawn=np.zeros(99, bool))
+
+
+def test_the_typical_window_is_an_ordinary_stretch_and_the_most_active_the_widest():
+    """Through a cycle that one large move broke, the window that travels
+    furthest holds the move; the one whose travel is the median of all does
+    not. A record no longer than the window starts at 0."""
+    from valvediag.analysis.quality import most_active_window, typical_window
+
+    x = np.sin(np.arange(20000) / 50.0)
+    x[15000:15500] += 5.0
+    wide, typical = most_active_window(x, 3000), typical_window(x, 3000)
+    assert wide <= 15000 < wide + 3000
+    assert not (typical <= 15500 and 15000 < typical + 3000)
+    assert np.ptp(x[typical:typical + 3000]) == pytest.approx(2.0, abs=0.01)
+    assert typical_window(x[:100], 3000) == most_active_window(x[:100], 3000) == 0

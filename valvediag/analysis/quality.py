@@ -43,7 +43,7 @@ from .align import AlignedLoop, contiguous_segments, to_epoch_us
 __all__ = ["DataQuality", "quality_metrics", "white_noise_std", "resolved_noise_std",
            "stored_resolution", "stored_points", "record_quantum", "despike",
            "bridge_short_gaps", "bridge_short_breaks", "drawn_lines", "drawn_counts",
-           "drawn_within", "most_active_window", "longest_run",
+           "drawn_within", "most_active_window", "typical_window", "longest_run",
            "mask_frozen_pv", "FROZEN_REST_REPEAT", "MANUAL_MODES", "AUTO_MODES", "LIMITS"]
 
 #: Mode texts meaning "the controller is not closing the loop".
@@ -721,13 +721,47 @@ def most_active_window(x, m: int) -> int:
     window's range. A long record is cut to the part that says most about
     the valve this way, at its native sampling.
     """
+    starts, ranges = _window_travels(x, m)
+    return int(starts[int(np.argmax(ranges))])
+
+
+def typical_window(x, m: int) -> int:
+    """Start of the ``m``-sample window whose travel is the median of all windows'.
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+        A signal, usually the controller output [its unit].
+    m : int
+        Window length [samples].
+
+    Returns
+    -------
+    int
+        First sample of the window; 0 when ``n <= m``.
+
+    Notes
+    -----
+    The windows and their travel are :func:`most_active_window`'s. Through a
+    limit cycle every window travels about as far, and the one that travels
+    furthest holds whatever broke the cycle: an operator's move, a load's
+    step, the cycle's end. A model of the cycle is fitted on an ordinary
+    stretch of it instead. Where the record is quiet but for one episode,
+    the median window may miss it: use :func:`most_active_window` there.
+    """
+    starts, ranges = _window_travels(x, m)
+    return int(starts[int(np.argsort(ranges, kind="stable")[ranges.size // 2])])
+
+
+def _window_travels(x, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Starts of the ``m``-sample windows, every quarter window and at the end,
+    and each window's range (one window at 0 when the signal is no longer)."""
     x = np.asarray(x, dtype=float)
     n = x.size
     if n <= m:
-        return 0
+        return np.zeros(1, dtype=int), np.zeros(1)
     starts = np.unique(np.r_[np.arange(0, n - m, max(1, m // 4)), n - m])
-    ranges = [np.ptp(x[s:s + m]) for s in starts]
-    return int(starts[int(np.argmax(ranges))])
+    return starts, np.array([np.ptp(x[s:s + m]) for s in starts])
 
 
 def stored_points(x) -> np.ndarray:

@@ -67,7 +67,7 @@ from scipy.signal import find_peaks, lfilter, oaconvolve
 
 from ..models.valves import apply_valve
 from .quality import (drawn_counts, drawn_within, most_active_window, resolved_noise_std,
-                      stored_points, white_noise_std)
+                      stored_points, typical_window, white_noise_std)
 from .trend import pv_op_trend
 
 __all__ = ["ValveSignature", "valve_signature", "StickSlipEvents", "stick_slip_events",
@@ -410,11 +410,14 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
         Oscillation period when one is known [s]; the load's drift is kept
         slower than three periods so that it cannot absorb the cycle.
     max_samples : int
-        Longer records are fitted on the stretch of this many samples in which
-        the OP travels furthest (at the native sampling: a valve's jump is one
-        sample wide, and resampling would smear it), unless that stretch holds
-        fewer than :data:`SIGNATURE_PERIODS` periods of a known cycle (see
-        Notes).
+        Longer records are fitted on a stretch of this many samples at the
+        native sampling (a valve's jump is one sample wide, and resampling
+        would smear it): where a cycle's period is known, the stretch whose
+        OP travel is the median of all (:func:`typical_window`: the widest
+        holds whatever broke the cycle, an operator's move or the cycle's
+        end), else the one in which the OP travels furthest; block means
+        where that stretch holds fewer than :data:`SIGNATURE_PERIODS` periods
+        of a known cycle (see Notes).
 
     Returns
     -------
@@ -560,7 +563,11 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     if pv.size < 64:
         return ValveSignature(verdict="unknown", reason=f"only {pv.size} samples (need 64)",
                               samples=int(pv.size), **base)
-    start = most_active_window(op, max_samples)
+    # a known cycle is fitted on an ordinary stretch of it (the widest OP
+    # swing is where something broke the cycle); a record without one, where
+    # the OP travels furthest
+    start = (typical_window(op, max_samples) if math.isfinite(period)
+             else most_active_window(op, max_samples))
     pv = pv[start:start + max_samples]
     op = op[start:start + max_samples]
     n = pv.size
