@@ -412,10 +412,11 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     max_samples : int
         Longer records are fitted on a stretch of this many samples at the
         native sampling (a valve's jump is one sample wide, and resampling
-        would smear it): where a cycle's period is known, the stretch whose
-        OP travel is the median of all (:func:`typical_window`: the widest
-        holds whatever broke the cycle, an operator's move or the cycle's
-        end), else the one in which the OP travels furthest; block means
+        would smear it): the one in which the OP travels furthest, but where
+        a cycle's period is known, the widest of those whose travel is
+        ordinary (:func:`typical_window`: one that travels much further than
+        the median holds whatever broke the cycle, an operator's move or the
+        cycle's end); block means
         where that stretch holds fewer than :data:`SIGNATURE_PERIODS` periods
         of a known cycle (see Notes).
 
@@ -563,9 +564,9 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
     if pv.size < 64:
         return ValveSignature(verdict="unknown", reason=f"only {pv.size} samples (need 64)",
                               samples=int(pv.size), **base)
-    # a known cycle is fitted on an ordinary stretch of it (the widest OP
-    # swing is where something broke the cycle); a record without one, where
-    # the OP travels furthest
+    # a known cycle is fitted on an ordinary stretch of it (an OP swing much
+    # wider than the median is where something broke the cycle); a record
+    # without one, where the OP travels furthest
     start = (typical_window(op, max_samples) if math.isfinite(period)
              else most_active_window(op, max_samples))
     pv = pv[start:start + max_samples]
