@@ -320,13 +320,6 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
         return none(f"the OP jumps at {first.sum()} of {ok.sum()} samples, more than an "
                     "operator's set-point moves: not read as kicks", gain, z)
     if not first.any():
-        # the integral action moves the OP by its gain times the PV's
-        # distance from the set point, the same way as the proportional
-        # action answers the PV's moves: where it is read clearly and carries
-        # a share of the OP's moves, the OP's drift against the PV's level
-        # says where the set point stood
-        ki, ki_se = float(coef[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
-        carried = np.cumsum(ki * np.where(np.isfinite(level), level, 0.0))
         # a set point that wanders without a step (a cascade's inner loop
         # follows its outer loop's output) is no level: its moves, each below
         # a kick, leave the fit's residual slow
@@ -336,6 +329,13 @@ def infer_setpoint(pv, op) -> InferredSetPoint:
                         f"{100 * slow:.0f} % of the answer's residual lies in its "
                         f"{WANDER_BLOCK}-sample means: the set point wandered without a step "
                         "(a cascade's inner loop?)", gain, z)
+        # the integral action moves the OP by its gain times the PV's
+        # distance from the set point, the same way as the proportional
+        # action answers the PV's moves: where it is read clearly and carries
+        # a share of the OP's moves, the OP's drift against the PV's level
+        # says where the set point stood
+        ki, ki_se = float(coef[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
+        carried = np.cumsum(ki * np.where(np.isfinite(level), level, 0.0))
         if (ki * gain > 0 and abs(ki) >= GAIN_Z * ki_se
                 and np.std(carried) >= INTEGRAL_SHARE * float(np.nanstd(u))):
             stood = centre - float(coef[2]) / ki

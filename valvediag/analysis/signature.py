@@ -416,9 +416,8 @@ def valve_signature(pv, op, sample_time: float, *, process: str, period: float =
         a cycle's period is known, the widest of those whose travel is
         ordinary (:func:`typical_window`: one that travels much further than
         the median holds whatever broke the cycle, an operator's move or the
-        cycle's end); block means
-        where that stretch holds fewer than :data:`SIGNATURE_PERIODS` periods
-        of a known cycle (see Notes).
+        cycle's end); block means where that stretch holds fewer than
+        :data:`SIGNATURE_PERIODS` periods of a known cycle (see Notes).
 
     Returns
     -------
