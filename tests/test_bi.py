@@ -339,7 +339,7 @@ def test_a_turn_within_a_sample_is_sharp_behind_its_lag():
     assert not sharp_behind_lag(None)
 
 
-@pytest.mark.parametrize("kc,ti", [(2.0, 300.0), (1.5, 250.0)])
+@pytest.mark.parametrize("kc,ti", [(2.0, 300.0), (1.5, 250.0), (1.5, 150.0)])
 def test_a_lag_behind_a_sticky_valve_puts_a_doubt_on_the_backlash_index(kc, ti):
     from valvediag import classify_loop
 
@@ -354,9 +354,11 @@ def test_a_lag_behind_a_sticky_valve_puts_a_doubt_on_the_backlash_index(kc, ti):
     d = classify_loop(pv, op, sample_time=1.0, process_type="integrating")
     lt = d.evidence["lagged_turns"]
     assert lt["lag_s"] == pytest.approx(10.0, rel=0.35) and lt["bi"] <= 1.5
-    if kc == 2.0:
+    if ti >= 250.0:
         # the level turns after the OP's reversal (a slip behind the lag):
-        # the turns' timing names the slip
+        # the turns' timing names the slip (at Kc 1.5, Ti 250 s the median
+        # turn's share is 0.17, under the slip's 0.2; pooled over the turns
+        # it is 0.17 at 16 standard errors)
         assert d.verdict == "stiction" and d.evidence["turn_timing"]["kind"] == "stiction"
     else:
         # stronger integral action against the ramps: the controller reverses

@@ -343,7 +343,7 @@ def test_a_step_that_a_compressed_op_hides_is_not_a_slip():
     assert t.verdict not in ("stiction", "backlash")
 
 
-@pytest.mark.parametrize("ti", [150.0, 250.0])
+@pytest.mark.parametrize("ti", [100.0, 250.0])
 def test_a_slip_seen_in_the_position_names_stiction_where_a_lag_rounds_the_turns(ti):
     # a sticky level valve behind a 15 s lag (10 % of the level's time
     # constant): the lag rounds the PV's turns and the Backlash Index reads
@@ -357,10 +357,10 @@ def test_a_slip_seen_in_the_position_names_stiction_where_a_lag_rounds_the_turns
     d = classify_loop(run.pv, run.op, run.sp, sample_time=H, process_type="integrating",
                       mv=_position(run.mv, noise=0.15, seed=2))
     assert d.verdict == "stiction", d.reason
-    if ti == 150.0:
+    if ti == 100.0:
         # strong integral action: the controller reverses once the turn is
-        # done, the turns' timing reads nothing, and only the position names
-        # the slip
+        # nearly done (3 % of it after, pooled over the turns), the turns'
+        # timing reads nothing, and only the position names the slip
         assert without.verdict == "backlash" and without.evidence["turn_timing"]["kind"] == ""
         assert "shows the valve slip" in d.reason and f"{d.bi:.2f}" in d.reason
     else:

@@ -118,7 +118,7 @@ from .signature import (KIND_SHARE, MIN_SLIPS, SENSE_SKEW, ValveSignature,
                         stick_slip_events, valve_signature)
 from .travel import ValveTravel, valve_travel
 from .trend import pv_op_trend
-from .turn_timing import SLIP_SHARE, turn_timing
+from .turn_timing import POOLED_SHARE, SLIP_SHARE, turn_timing
 
 __all__ = ["classify_loop", "LoopDiagnosis", "integrating_screen"]
 
@@ -1358,7 +1358,8 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
         timing = turn_timing(x, u, h, osc.period, sp=s_ab)
         ev["turn_timing"] = timing.as_dict()
         if timing.kind == "stiction":
-            conf = c_data * proc_conf * (0.5 + 0.4 * min(1.0, timing.share / (2 * SLIP_SHARE)))
+            late = np.nanmax([timing.share / SLIP_SHARE, timing.pooled / POOLED_SHARE])
+            conf = c_data * proc_conf * (0.5 + 0.4 * min(1.0, late / 2.0))
             reason = (f"rounded turns (Backlash Index {bres.bi:.2f}), but {timing.reason}, "
                       "which a dead band cannot do (a loose valve moves only while the OP moves "
                       "on); method: Backlash Index and the turns' timing against the OP's "
