@@ -203,3 +203,4 @@ def test_turn_timing_plot_marks_the_reversals():
     assert len(ax.get_title()) > 0
     assert len(ax.lines) >= 1 + t.turns          # the PV and a line at each reversal read
     assert np.isfinite(t.as_dict()["share_after_op_reversal"])
+    assert f"pooled {t.pooled:.2f}" in ax.get_title()

@@ -164,8 +164,11 @@ class TurnTiming:
             for k, j in enumerate(self.at[sel]):
                 ax.axvline(t[j], color=color, lw=0.6, alpha=0.6, label=label if k == 0 else None)
         ax.legend(loc="upper left", fontsize=7)
-        ax.set_title(f"{self.turns} turns: median share after the OP's reversal {self.share:.2f}"
-                     if self.turns else "no turn read against the OP's reversals")
+        title = (f"{self.turns} turns: median share after the OP's reversal {self.share:.2f}"
+                 if self.turns else "no turn read against the OP's reversals")
+        if math.isfinite(self.pooled):
+            title += f"; pooled {self.pooled:.2f} ({self.pooled_z:.1f} SE)"
+        ax.set_title(title)
         return ax
 
 
