@@ -1,4 +1,6 @@
 import os
+import platform
+import sys
 
 import pytest
 from hypothesis import settings
@@ -6,6 +8,10 @@ from hypothesis import settings
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 os.environ.setdefault("DO_NOT_TRACK", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
+# the BLAS kernels the Makefile pins (see there), for a pytest run without make;
+# OpenBLAS reads this when numpy first loads it
+if platform.machine() == "x86_64" and "numpy" not in sys.modules:
+    os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")
 
 # The property-based tests draw new examples on every `make test`, so a developer's
 # runs keep exploring. CI (.ci/run sets HYPOTHESIS_PROFILE=ci) draws a fixed set,

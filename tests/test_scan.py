@@ -808,14 +808,15 @@ def _scan_draw(klass, seed, index, process_type):
 
 
 @pytest.mark.parametrize("klass, seed, index", [
-    ("flow-stiction-cycle", 10, 1),          # 1 h at 10 s, a dead time of a third of the period
+    ("flow-stiction-cycle", 17, 2),          # 4 h at 10 s, the OP and PV compressed
     ("temperature-stiction-cycle", 14, 1),   # 2 h at 1 s
 ])
 def test_a_sticky_flow_cycle_that_a_linear_valve_nearly_explains_is_found(
         klass, seed, index, monkeypatch):
     # study draws of the realistic benchmark whose linear valve, behind a long
-    # dead time, explains much of the PV: the sticky valve removes 39-46 % of
-    # its held-out error. The level's limit (60 %) called them linear
+    # dead time, explains much of the PV: the sticky valve removes 39-58 % of
+    # its held-out error (flow 10:1 of seed 10 was such a draw with the BLAS
+    # kernels of another processor; on the pinned ones it removes 68 %). The level's limit (60 %) called them linear
     # oscillations; on a self-regulating loop the loads are read by their
     # shape before the signature, and a valve with a slip jump needs 30 %
     from valvediag.analysis.signature import SIGNATURE_LIMITS
@@ -833,13 +834,15 @@ def test_a_sticky_flow_cycle_that_a_linear_valve_nearly_explains_is_found(
 
 @pytest.mark.parametrize("klass, seed, index", [
     ("flow-stiction-cycle", 17, 2),          # 4 h at 10 s, the OP and PV compressed
-    ("temperature-stiction-cycle", 22, 1),   # 2 h at 10 s
+    ("temperature-stiction-cycle", 12, 0),   # 24 h at 2 s
 ])
 def test_a_sticky_cycle_of_no_registered_type_needs_the_share_of_a_registered_one(
         klass, seed, index):
-    # draws of seeds 17-26 whose type only the data test names (their PV does
-    # not run in straight ramps): the sticky valve removes 58 % of a linear
-    # valve's held-out error, where 60 % was asked lest the loop be a level
+    # study draws whose type only the data test names (their PV does not run
+    # in straight ramps): the sticky valve removes 58 % of a linear valve's
+    # held-out error, where 60 % was asked lest the loop be a level
+    # (temperature 22:1 of seed 22 was such a draw with the BLAS kernels of
+    # another processor; on the pinned ones its cycle keeps a clock's time)
     from valvediag.analysis.signature import SIGNATURE_LIMITS
 
     r = _scan_draw(klass, seed, index, "unknown")

@@ -284,6 +284,19 @@ def turn_timing(pv, op, sample_time: float, period: float, *, sp=None) -> TurnTi
     it is done (``e / Ti`` at the turn near the new ramp's slope: strong
     integral action, a long period), reads near 0 as well.
 
+    Each turn's two distances are read unsigned for its share, and the
+    level's noise adds to both: a noisy dead band's median share lies above
+    its lag's tail, which is why the median must reach
+    :data:`SLIP_SHARE`. Pooled, the distances are signed (a rounded turn
+    lies inside the corner of its two ramps: positive on both) and averaged
+    over the turns (:func:`scipy.stats.trim_mean`, a tenth cut at either
+    end, against turns the reversals misplace), so the noise cancels, and a
+    pooled share at or above :data:`POOLED_SHARE`, with the mean distance
+    after the reversal :data:`POOLED_Z` standard errors above zero, names a
+    slip too. The pooled share reads a dead band's lag tail as it is: a
+    loose valve behind a lag of a fifth of the time it follows the OP or
+    more (``2 (L / T_f)^2 >= 0.08``) reads as a slip.
+
     The reading holds for a PI controller that sees the level unfiltered:
     a filtered PV, or derivative action on it, moves the reversal. A valve
     that slips where the OP turns for another reason (a set-point move, a
