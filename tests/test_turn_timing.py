@@ -99,6 +99,19 @@ def test_the_pooled_share_of_a_quiet_record_matches_its_median_turn():
         assert abs(t.pooled - t.share) < 0.05
 
 
+def test_a_loose_valve_behind_a_long_lag_reads_as_a_slip_pooled_before_it_does_turn_by_turn():
+    """The limit the Notes give: the pooled share reads a dead band's lag tail
+    as it is. Behind 24 s (2 % of the period) a loose level valve reads
+    nothing; behind 48 s (5 %) its tail reads as a slip pooled, not yet by
+    the median turn."""
+    pv, op, _ = level_cycle("backlash", 24.0)
+    t = turn_timing(pv, op, H, detect_oscillation(pv, H).period)
+    assert t.kind == "" and t.pooled < POOLED_SHARE
+    pv, op, _ = level_cycle("backlash", 48.0)
+    t = turn_timing(pv, op, H, detect_oscillation(pv, H).period)
+    assert t.kind == "stiction" and t.pooled >= POOLED_SHARE and t.share < SLIP_SHARE
+
+
 def _stored(op, deadband):
     """``op`` stored by exception with ``deadband`` and read back by straight lines."""
     from valvediag.synth.plant import exception_deadband
