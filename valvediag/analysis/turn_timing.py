@@ -109,7 +109,7 @@ class TurnTiming:
         Turns read.
     share : float
         Median share of a turn that comes after the OP's reversal (0: all
-        before; NaN when no turn was read).
+        before; NaN when fewer than :data:`MIN_TURNS` turns were read).
     shares : numpy.ndarray
         That share at each turn read.
     at : numpy.ndarray
@@ -354,9 +354,9 @@ def turn_timing(pv, op, sample_time: float, period: float, *, sp=None) -> TurnTi
     # the level's distances from the two ramps at the reversal, signed so
     # that a turn rounded either way (it lies inside the corner the ramps
     # make) reads positive on both
-    turn = np.sign(sb)
-    below_b = turn * (mb + sb * (i - tb) - level)
-    below_a = turn * (ma + sa * (i - ta) - level)
+    side = np.sign(sb)                     # +1 where the level turns at a maximum
+    below_b = side * (mb + sb * (i - tb) - level)
+    below_a = side * (ma + sa * (i - ta) - level)
     eb, ea = np.abs(below_b), np.abs(below_a)
     noise = white_noise_std(x)
     se = 3.0 * noise / math.sqrt(2 * k + 1) if np.isfinite(noise) else 0.0
@@ -379,8 +379,8 @@ def turn_timing(pv, op, sample_time: float, period: float, *, sp=None) -> TurnTi
     if n < MIN_TURNS and not late:
         return TurnTiming("", f"{n} turns read against the OP's reversals, fewer than "
                           f"{MIN_TURNS}", turns=n, shares=shares, at=at, **common)
-    share = float(np.median(shares)) if n else math.nan
-    if n >= MIN_TURNS and share >= SLIP_SHARE:
+    share = float(np.median(shares)) if n >= MIN_TURNS else math.nan
+    if share >= SLIP_SHARE:
         kind, why = "stiction", (f"the level turns after the OP has reversed (a median "
                                  f"{100 * share:.0f}% of each turn comes after it, {n} turns): "
                                  "the valve slipped and a lag spread the turn")
