@@ -90,6 +90,10 @@ seconds holds it (one sample of each block of the record's samples kept),
 ``--export average:S`` as one that averages each block (a historian's
 averaged export), with the registry's ``sampling`` saying so; a record
 already that coarse is read as drawn.
+``--level-lag F`` draws each level's first-order lag between its valve and
+its measurement (a damped transmitter, a positioner) up to ``F`` of its time
+constant, where the sets draw up to 0.1 (lags under 2 % of a limit cycle's
+period); the random draws are the same (``draw_loop(..., level_lag=F)``).
 ``--units`` reads every loop in other units: ``eng`` the PV and set point
 as ``1000 + 37.3 x`` with no span in the registry, ``ma`` the OP (and the
 position) in mA, ``4 + 0.16 x``, ``normalised`` every tag less its mean
@@ -212,13 +216,14 @@ def _work(args):
     export = rest[5] if len(rest) > 5 else None
     units = rest[6] if len(rest) > 6 else None
     no_setpoint = bool(rest[7]) if len(rest) > 7 else False
+    level_lag = rest[8] if len(rest) > 8 else None
     from valvediag.io.registry import LoopSpec
     from valvediag.scan import LoopJob, ScanConfig, analyse_loop
     from valvediag.synth.cases import benchmark_rng, draw_loop
     from valvediag.synth.plant import historian_record
 
     rng = benchmark_rng(klass, seed, i)
-    loop = draw_loop(klass, rng, name=f"{klass}-{i:02d}", cascade=cascade)
+    loop = draw_loop(klass, rng, name=f"{klass}-{i:02d}", cascade=cascade, level_lag=level_lag)
     known = rng.random() < 0.7
     if upside_down:
         loop = dataclasses.replace(loop, pv=100.0 - loop.pv, sp=100.0 - loop.sp)
@@ -327,6 +332,9 @@ def main():
     ap.add_argument("--no-setpoint", action="store_true",
                     help="export every loop without its set point (PV and OP only, as some "
                          "historian exports hold)")
+    ap.add_argument("--level-lag", type=float, default=None, metavar="F",
+                    help="draw each level's lag between valve and measurement up to F of its "
+                         "time constant (default 0.1), a study of lags the sets do not hold")
     ap.add_argument("--seeds", default="", metavar="A-B",
                     help="draw the study seeds A to B (4 loops a class is usual) instead of "
                          "the named sets")
@@ -364,7 +372,8 @@ def main():
     all_rows = []
     for name, seed in seeds.items():
         jobs = [(k, i, seed, args.valve_position, False, args.op_door, args.pv_decimals,
-                 args.cascade, args.gaps, export, args.units, args.no_setpoint)
+                 args.cascade, args.gaps, export, args.units, args.no_setpoint,
+                 args.level_lag)
                 for k in classes for i in range(args.loops)]
         t0 = time.perf_counter()
         with ProcessPoolExecutor(max_workers=max(1, args.workers)) as ex:
@@ -388,6 +397,8 @@ def main():
             with_mv += f", in units {args.units}"
         if args.no_setpoint:
             with_mv += ", no set point exported"
+        if args.level_lag is not None:
+            with_mv += f", levels' lags up to {args.level_lag:g} of their time constants"
         _report(rows, f"{name} set (seed {seed}{with_mv}), "
                       f"{time.perf_counter() - t0:.0f} s wall", details)
         if args.reverse_acting:

@@ -513,6 +513,22 @@ def test_a_flow_drawn_as_a_cascade_inner_loop_is_the_same_draw_with_a_wandering_
             assert "cascade" not in inner.params and np.array_equal(inner.sp, plain.sp)
 
 
+def test_a_level_drawn_with_a_longer_lag_is_the_same_draw_with_its_lag_scaled():
+    from valvediag.synth.cases import benchmark_rng, draw_loop
+
+    for klass in ("level-backlash-cycle", "flow-stiction-cycle"):
+        for index in range(3):
+            plain = draw_loop(klass, benchmark_rng(klass, 10, index))
+            slow = draw_loop(klass, benchmark_rng(klass, 10, index), level_lag=0.3)
+            assert slow.params["tau_s"] == plain.params["tau_s"]
+            if klass.startswith("level"):
+                # drawn up to 0.3 of the time constant where the sets draw up to 0.1
+                assert slow.params["lag_s"] == pytest.approx(3.0 * plain.params["lag_s"])
+                assert slow.params["lag_s"] <= 0.3 * slow.params["tau_s"]
+            else:
+                assert np.array_equal(slow.pv, plain.pv)
+
+
 def test_the_temperature_classes_draw_slow_self_regulating_loops_and_leave_the_others_alone():
     """Time constants of 60-600 s, dead times up to 0.3 of them; the loads of
     the disturbed class 3-15 times the time constant and dead time a period.

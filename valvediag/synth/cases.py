@@ -294,7 +294,7 @@ def _events(pv: np.ndarray, noise: float) -> int:
 
 
 def draw_loop(klass: str, rng: np.random.Generator, *, name: str = "", tries: int = 60,
-              cascade: bool = False) -> SynthLoop:
+              cascade: bool = False, level_lag: float | None = None) -> SynthLoop:
     """Simulate one loop of a class, redrawn until its record shows the class.
 
     Parameters
@@ -311,6 +311,13 @@ def draw_loop(klass: str, rng: np.random.Generator, *, name: str = "", tries: in
         with periods of 20-120 minutes, on top of the class's own set-point
         moves (:data:`CASCADE_WANDER`). Levels and dead responses are drawn
         as without it. Without it the draws are as they were.
+    level_lag : float, optional
+        Largest first-order lag between a level's valve and its measured
+        level (a damped transmitter, a positioner), as a share of the
+        level's time constant; the lag is drawn uniformly below it. By
+        default 0.1 (:data:`_PROCESSES`). The random draws are the same, so
+        a level is the same draw with its lag scaled (where the record still
+        shows its class).
 
     Returns
     -------
@@ -325,7 +332,7 @@ def draw_loop(klass: str, rng: np.random.Generator, *, name: str = "", tries: in
         raise ValueError(f"unknown class {klass!r}; choose from {', '.join(CLASSES)}")
     truth, ptype, _ = CLASSES[klass]
     for _ in range(tries):
-        out = _try(klass, rng, cascade)
+        out = _try(klass, rng, cascade, level_lag)
         if out is not None:
             pv, op, sp, h, params, mv = out
             return SynthLoop(name=name or klass, klass=klass, truth=truth, process_type=ptype,
@@ -333,7 +340,8 @@ def draw_loop(klass: str, rng: np.random.Generator, *, name: str = "", tries: in
     raise ValueError(f"{klass}: no draw in {tries} tries showed the class")
 
 
-def _try(klass: str, rng: np.random.Generator, cascade: bool = False):
+def _try(klass: str, rng: np.random.Generator, cascade: bool = False,
+         level_lag: float | None = None):
     """One draw: (pv, op, sp, h, params, mv) or None when the record does not show the class."""
     h = float(rng.choice((1.0, 2.0, 5.0, 10.0)))
     length = float(rng.choice((1.0, 2.0, 4.0))) * 3600 if rng.random() < 0.5 else _DAY
@@ -352,6 +360,8 @@ def _try(klass: str, rng: np.random.Generator, cascade: bool = False):
     cycle_expected = CLASSES[klass][2]
     (t_lo, t_hi), (k_lo, k_hi), (i_lo, i_hi), dead, lag, load0 = _PROCESSES[
         "level" if integ else "temperature" if klass.startswith("temperature") else "flow"]
+    if integ and level_lag is not None:
+        lag = float(level_lag)
     tau = float(np.exp(rng.uniform(np.log(t_lo), np.log(t_hi))))
     kc = float(rng.uniform(k_lo, k_hi))
     ti = float(rng.uniform(i_lo, i_hi)) * tau
