@@ -464,6 +464,71 @@ def test_a_slow_levels_slips_far_apart_are_read_over_wide_windows(seed):
     assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
 
 
+def _stepped_level(seed, sigma=0.05, stick=True, h=1.0, every=1200.0, steps=4, g=0.002,
+                   kc=1.5, hold=400.0):
+    """Hand-built: a level under proportional control whose set point steps by
+    3 % every ``every`` seconds, alternately up and down. With ``stick``, the
+    kick moves the valve (the level's slope steps to 0.005 %/s) and the valve
+    holds there while the OP comes back, until it slips ``hold`` seconds after
+    the step, 70 % of the way back; else the valve follows the OP (the level's
+    slope is ``g`` times the OP's move)."""
+    rng = np.random.default_rng(seed)
+    n = int((steps + 0.5) * every / h)
+    t = np.arange(n) * h
+    sp = np.full(n, 50.0)
+    slope = np.zeros(n)
+    for i in range(steps):
+        s = (0.5 + i) * every
+        way = 1.0 if i % 2 == 0 else -1.0
+        sp[t >= s] += 3.0 * way
+        slope += way * 0.005 * ((t >= s) & (t < s + hold))
+        slope += way * 0.0015 * ((t >= s + hold) & (t < s + every))
+    noise = rng.normal(0.0, sigma, n)
+    if stick:
+        x = 50.0 + np.cumsum(slope) * h
+    else:
+        x = np.empty(n)
+        x[0] = 50.0
+        for k in range(1, n):
+            x[k] = x[k - 1] + h * g * kc * (sp[k - 1] - x[k - 1] - noise[k - 1])
+    pv = x + noise
+    return pv, 40.0 + kc * (sp - pv), sp, h
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_levels_slips_in_its_answer_to_setpoint_steps_are_read(seed):
+    # each slip steps the level's slope by 0.0035 %/s, 400 s after a set-point
+    # step: over half-windows of 128 samples, too few standard errors; the
+    # windows wide enough to read it (512) hold the step, whose kick kinks
+    # the level too. Read over the window cut to begin a quarter window after
+    # the step, all four are slips where they are (before 2026-12-01 the
+    # windows that held a step were not read: none was)
+    pv, op, sp, h = _stepped_level(seed)
+    e = stick_slip_events(pv, op, h, process="integrating", sp=sp)
+    assert e.found and e.kind == "stiction" and e.consistent == 4, e.reason
+    np.testing.assert_allclose(e.index * h, 1000.0 + 1200.0 * np.arange(4), atol=60.0)
+    assert np.all(np.sign(e.size) == -np.sign(np.diff(sp)[np.flatnonzero(np.diff(sp))]))
+    # a valve that follows its OP answers the same steps with smooth turns
+    pv, op, sp, h = _stepped_level(seed, stick=False)
+    e = stick_slip_events(pv, op, h, process="integrating", sp=sp)
+    assert e.events == 0 and not e.found, e.reason
+    d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+
+
+def test_a_kink_read_in_the_window_cut_after_a_step_is_fitted_there():
+    from valvediag.analysis.signature import _cut_kink
+
+    # a hinge of known size at sample 300 of a window that begins after the
+    # step, on a parabola: read to within its standard error's few multiples
+    rng = np.random.default_rng(4)
+    t = np.arange(600.0) - 300.0
+    y = 2.0 + 0.01 * t + 2e-6 * t * t + 0.004 * np.maximum(t, 0.0) + rng.normal(0, 0.05, 600)
+    step, se = _cut_kink(y, 300, 512, 0.05)
+    assert 0.0 < se < 0.001
+    assert abs(step - 0.004) < 4.0 * se
+
+
 @pytest.mark.parametrize("seed, index", [(12, 1), (18, 1)])
 def test_two_kinks_and_no_other_make_a_level_snapshot_sticky(seed, index):
     """Sticky levels of the realistic benchmark's generator (proportional

@@ -1022,6 +1022,11 @@ KINK_TRAVEL_Z = 4.0
 #: a level after a quick move of its OP (a settled loop's answer to a load's
 #: step), so such a kink says nothing of the valve.
 KINK_BURST_STILL = 0.1
+#: Share of the half-window after a set-point step that a level's kink,
+#: read over a window cut to begin after the step, leaves to the loop's
+#: answer to the step's kick (the valve moved by the kick, the level turning
+#: behind the process's dead time and lag).
+STEP_ANSWER = 0.25
 #: Steps over which a self-regulating PV's jumps are measured [samples].
 SLIP_STEPS = (2, 8, 32, 128)
 
@@ -1107,9 +1112,28 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
     step, read where it stands :data:`KINK_Z` standard errors above the
     noise (a bend of the trend, a wandering load or a valve that follows a
     moving OP, is taken up by the smooth terms). A kink is judged when the
-    set point stood over the window and the OP's mean moved by
-    :data:`KINK_TRAVEL_Z` standard errors over the half-window before it (a
-    kink the OP did not drive is a load's and says nothing of the valve).
+    set point stood over the window and the half-window before it, and the
+    OP's mean moved by :data:`KINK_TRAVEL_Z` standard errors over the
+    half-window before it (a kink the OP did not drive is a load's and says
+    nothing of the valve). A set-point step kicks the OP, and every valve
+    that moves kinks the level after it; but the controller's answer to the
+    step is also where a sticky level valve slips: the kick moves it, the
+    OP then comes back as the level nears its new set point, the valve
+    holds at the kicked position until the OP has come back by its band,
+    and slips, minutes after the step. Where the set point stepped only in
+    the first half of the half-window before a kink (and not after it), the
+    window is cut to begin :data:`STEP_ANSWER` of the half-window after the
+    step, the kink refitted over the cut window by the same terms, and the
+    stretch before it (the OP's travel, the level's bend) read from there.
+    A slow level's slip steps its slope by little against the noise of a
+    narrow window, and the wide windows that see it held the step before.
+    Such kinks pass the scan's checks against a following valve as any
+    other (:func:`~valvediag.analysis.bumps.kinks_over_following`, or the
+    steps' own finding of a valve that went against its kicks); whether
+    the level ran straight while the OP came back from its kick is not
+    read as a hold by itself: a healthy level's OP moves over the same
+    minutes to answer its load, and a following gain fitted over that
+    stretch read 0 or below on healthy levels as on sticky ones.
     It is a slip when the slope stepped the way the OP crept (through the
     loop's sense, :func:`loop_sense`), the level ran straight before it (its
     slope changed by at most :data:`KINK_HELD` of the step, the way of the
@@ -1623,6 +1647,20 @@ def _stretch_bend(y, noise):
             2.0 * m * noise * math.sqrt(float(curvature[0])))
 
 
+def _cut_kink(y: np.ndarray, before: int, w: int, noise: float):
+    """(slope step, its standard error) [PV unit/sample] of a hinge ``before``
+    samples into ``y``, fitted by least squares with the terms of
+    :func:`_kink_kernels` (a line, a parabola, a change of curvature), or
+    None where they cannot be told apart."""
+    t = np.arange(y.size, dtype=float) - before
+    A = np.c_[np.ones_like(t), t, t * t / w, np.maximum(t, 0.0) ** 2 / w, np.maximum(t, 0.0)]
+    AtA = A.T @ A
+    if np.linalg.cond(AtA) > 1e12:
+        return None
+    inv = np.linalg.inv(AtA)
+    return float(inv[4] @ (A.T @ y)), noise * math.sqrt(float(inv[4, 4]))
+
+
 def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol, drawn_at=None):
     """Kinks of a level read over half-windows of ``w`` samples, or None.
 
@@ -1640,6 +1678,23 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol, drawn_at=None):
     spread = np.sqrt(np.clip(2 * w / np.maximum(density, 1.0), 1.0, None))
     z = np.nan_to_num(pk / (noise * spread))
     idx, _ = find_peaks(np.abs(z), height=KINK_Z, distance=w)
+    # a window that holds a set-point move reads its kick; where the set point
+    # last moved in the half-window before a kink, but not in its last half,
+    # the kink is read over a window cut to begin after the move's answer
+    # (its candidates apart: a kick's kink near them does not hide them)
+    moves = np.flatnonzero(np.abs(np.diff(sp)) > sp_tol) + 1
+    last = np.full(n, -1)
+    answer = int(STEP_ANSWER * w)
+    if moves.size:
+        at = np.arange(n)
+        j = np.searchsorted(moves, at, side="right")
+        last = np.where(j > 0, moves[np.maximum(j - 1, 0)], -1)
+        following = np.where(j < moves.size, moves[np.minimum(j, moves.size - 1)], n + w)
+        after_step = ((last >= 0) & (last > at - w - answer) & (last <= at - w // 2)
+                      & (following >= at + w))
+        cut_idx, _ = find_peaks(np.where(after_step, np.abs(z), 0.0), height=KINK_Z,
+                                distance=w)
+        idx = np.union1d(idx[~after_step[idx]], cut_idx)
     if drawn_at is not None and idx.size:
         # a line drawn across a gap kinks at its ends, and a window that
         # holds one reads a kink of it anywhere: only measured windows are read
@@ -1657,11 +1712,23 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol, drawn_at=None):
     judged = np.zeros(idx.size, bool)
     ok = np.zeros(idx.size, bool)
     travel = np.zeros(idx.size)
+    step = np.zeros(idx.size)
     for i, k in enumerate(idx):
+        lo, cut = k - w, None                              # where the stretch before begins
         if np.ptp(sp[max(0, k - 2 * w):min(n, k + w)]) > sp_tol:
-            continue          # a set-point move moves every valve: it says nothing
-        d = pk[k] / kink_norm                              # slope step [PV unit/sample]
-        travel[i] = float(np.mean(op[k - q:k]) - np.mean(op[k - w:k - w + q]))
+            if not (max(0, k - w - answer + 1) <= last[k] <= k - w // 2
+                    and np.ptp(sp[last[k]:k + w]) <= sp_tol):
+                continue          # a set-point move moves every valve: it says nothing
+            # the controller's answer to a step, where a sticky valve slips:
+            # read over the window cut to begin after the kick's answer
+            lo = int(last[k]) + answer
+            cut = _cut_kink(y[lo:k + w], k - lo, w, noise * spread[k])
+            if cut is None or abs(cut[0]) < KINK_Z * cut[1]:
+                continue
+        d = pk[k] / kink_norm if cut is None else cut[0]   # slope step [PV unit/sample]
+        step[i] = d
+        qq = q if cut is None else max(2, (k - lo) // 4)
+        travel[i] = float(np.mean(op[k - qq:k]) - np.mean(op[lo:lo + qq]))
         # a kink the OP did not drive (it stood still) is a load's: it says nothing
         judged[i] = abs(travel[i]) > travel_min
         if not judged[i]:
@@ -1669,19 +1736,21 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol, drawn_at=None):
         # a stuck valve breaks loose as the OP creeps on; where the OP stood
         # still until the last quarter window and then moved fast, the valve
         # may have followed it
-        quarters = op[k - 4 * q:k].reshape(4, q).mean(axis=1)
+        quarters = op[k - 4 * qq:k].reshape(4, qq).mean(axis=1)
         if np.ptp(quarters[:3]) <= KINK_BURST_STILL * abs(quarters[3] - quarters[2]):
             judged[i] = False
             continue
         # the valve moved the way the OP crept, in one step, after it had held
         way = sense != 0 and np.sign(d) == sense * np.sign(travel[i])
-        held = 2.0 * w * pb[k] / bend_norm * np.sign(d) <= KINK_HELD * abs(d)
+        held = cut is not None or 2.0 * w * pb[k] / bend_norm * np.sign(d) <= KINK_HELD * abs(d)
         # over the stretch since the last kink, a valve that followed the OP
         # would have bent the level by about the whole step, one that held not
         # at all: where the stretch cannot tell the two (its slope change is
-        # not read to half the limit) the kink says nothing of the valve
-        before = others[(others < k - gap) & (others >= k - w)]
-        bent = _stretch_bend(y[int(before[-1]) + gap if before.size else k - w:k],
+        # not read to half the limit) the kink says nothing of the valve (a
+        # cut window's stretch is read whole: the kinks near the step read
+        # its kick)
+        before = others[(others < k - gap) & (others >= k - w)] if cut is None else others[:0]
+        bent = _stretch_bend(y[int(before[-1]) + gap if before.size else lo:k],
                              noise * spread[k])
         if bent is None or bent[1] > KINK_HELD / 2.0 * abs(d):
             judged[i] = False
@@ -1694,5 +1763,5 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol, drawn_at=None):
         abrupt = near.size > 0 and float(near.max()) >= KINK_ABRUPT * abs(d)
         ok[i] = way and held and abrupt
     return (idx[judged], ok[judged], np.abs(travel[judged]), np.zeros(int(judged.sum())),
-            pk[idx[judged]] / kink_norm)
+            step[judged])
 
