@@ -506,7 +506,14 @@ def test_a_levels_slips_in_its_answer_to_setpoint_steps_are_read(seed):
     pv, op, sp, h = _stepped_level(seed)
     e = stick_slip_events(pv, op, h, process="integrating", sp=sp)
     assert e.found and e.kind == "stiction" and e.consistent == 4, e.reason
+    assert e.after_step.all()
     np.testing.assert_allclose(e.index * h, 1000.0 + 1200.0 * np.arange(4), atol=60.0)
+    # two stretches pooled keep each kink's reading, in turn
+    parts = [stick_slip_events(pv[a:b], op[a:b], h, process="integrating", sp=sp[a:b])
+             for a, b in ((0, 2400), (2400, pv.size))]
+    pooled = pooled_stick_slip_events(parts, record_s=pv.size * h)
+    np.testing.assert_array_equal(pooled.after_step,
+                                  np.concatenate([r.after_step for r in parts]))
     assert np.all(np.sign(e.size) == -np.sign(np.diff(sp)[np.flatnonzero(np.diff(sp))]))
     # a valve that follows its OP answers the same steps with smooth turns
     pv, op, sp, h = _stepped_level(seed, stick=False)
@@ -514,6 +521,29 @@ def test_a_levels_slips_in_its_answer_to_setpoint_steps_are_read(seed):
     assert e.events == 0 and not e.found, e.reason
     d = classify_loop(pv, op, sp, sample_time=h, process_type="integrating")
     assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+
+
+def test_a_healthy_levels_answer_to_its_steps_kinks_it_but_is_not_called_sticky():
+    """A healthy level of the realistic benchmark's generator (study seed 10,
+    loop 0: PI control, a 4 h snapshot at 5 s) exported as 30 s means reads
+    three kinks as slips: two over whole windows, one in its answer to a
+    set-point step. Its two steps cannot check them against a following
+    valve (three must answer to read its gain), and a kink in a step's
+    answer does not count towards the three that stand unchecked (the
+    version that first read such kinks called the level ``stiction``)."""
+    from valvediag.synth.cases import benchmark_rng, draw_loop
+
+    loop = draw_loop("level-healthy", benchmark_rng("level-healthy", 10, 0))
+    m = int(round(30.0 / loop.sample_time))
+    n = loop.pv.size // m * m
+    pv, op, sp = (x[:n].reshape(-1, m).mean(axis=1) for x in (loop.pv, loop.op, loop.sp))
+    e = stick_slip_events(pv, op, 30.0, process="integrating", sp=sp)
+    assert e.found and e.consistent >= MIN_SLIPS and e.after_step.any(), e.reason
+    assert e.consistent - np.count_nonzero(e.after_step) < MIN_SLIPS
+    d = classify_loop(pv, op, sp, sample_time=30.0, process_type="integrating",
+                      pv_averaged=True)
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+    assert d.evidence["kinks_unchecked"]["consistent"] == e.consistent
 
 
 def test_a_kink_read_in_the_window_cut_after_a_step_is_fitted_there():

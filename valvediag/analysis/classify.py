@@ -969,7 +969,10 @@ def classify_loop(pv, op, sp=None, *, sample_time: float, process_type: str = "u
                 # pooled over a record's stretches, which read no set-point steps:
                 # a level of no known type stands only on its own steps' check
                 events_read[kind] = slips
-            if level_unchecked and slips.found and (guessed or slips.consistent < MIN_SLIPS):
+            # kinks in the controller's answer to a set-point step, where a
+            # healthy loop's own answer bends the level, count only checked
+            whole = slips.consistent - int(np.count_nonzero(slips.after_step))
+            if level_unchecked and slips.found and (guessed or whole < MIN_SLIPS):
                 # kinks of a record of no known type, or two kinks (the most a
                 # snapshot holds: too few alone to rule out a load's turns after
                 # the OP crept their way), make a fault only where the set-point

@@ -791,7 +791,9 @@ def _pooled_events(seg_diag, record_s: float, process_type: str):
     steps or more, as a gap-free record's would): the gain those steps read
     is then a slipping valve's, and explains nothing. A level's pooled
     kinks need the full rule's three: two, which a snapshot allows, stand
-    only where a stretch's own set-point steps checked them."""
+    only where a stretch's own set-point steps checked them, and kinks read
+    in the controller's answer to a set-point step are not counted among
+    the three."""
     quiet = [e for e in seg_diag if e[2].verdict in ("no-oscillation", "insufficient-data")]
     against = sum(e[2].bumps.against for e in quiet if e[2].bumps is not None)
     for process in ("self-regulating", "integrating"):
@@ -802,9 +804,11 @@ def _pooled_events(seg_diag, record_s: float, process_type: str):
         if len(readings) < 2:
             continue
         pooled = pooled_stick_slip_events(readings, record_s=record_s)
-        if not pooled.found or (process == "integrating" and pooled.consistent < MIN_SLIPS):
+        whole = pooled.consistent - int(np.count_nonzero(pooled.after_step))
+        if not pooled.found or (process == "integrating" and whole < MIN_SLIPS):
             # a level's two kinks pooled from stretches were checked against no
-            # set-point steps as two (classify_loop's kinks_unchecked)
+            # set-point steps as two, and its kinks in the controller's answer
+            # to a step not at all (classify_loop's kinks_unchecked)
             continue
         src = "loop registry" if process_type != "unknown" else \
             "data test: the OP after the set-point steps" if process == "integrating" \
