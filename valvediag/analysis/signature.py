@@ -1698,18 +1698,19 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol, drawn_at=None):
     # the kink is read over a window cut to begin after the move's answer
     # (its candidates apart: a kick's kink near them does not hide them)
     moves = np.flatnonzero(np.abs(np.diff(sp)) > sp_tol) + 1
-    last = np.full(n, -1)
+    last = np.full(n, -1)                  # the set point's last move at or before each sample
     answer = int(STEP_ANSWER * w)
+    cuttable = np.zeros(n, bool)
     if moves.size:
         at = np.arange(n)
         j = np.searchsorted(moves, at, side="right")
         last = np.where(j > 0, moves[np.maximum(j - 1, 0)], -1)
         following = np.where(j < moves.size, moves[np.minimum(j, moves.size - 1)], n + w)
-        after_step = ((last >= 0) & (last > at - w - answer) & (last <= at - w // 2)
-                      & (following >= at + w))
-        cut_idx, _ = find_peaks(np.where(after_step, np.abs(z), 0.0), height=KINK_Z,
+        cuttable = ((last >= 0) & (last > at - w - answer) & (last <= at - w // 2)
+                    & (following >= at + w))
+        cut_idx, _ = find_peaks(np.where(cuttable, np.abs(z), 0.0), height=KINK_Z,
                                 distance=w)
-        idx = np.union1d(idx[~after_step[idx]], cut_idx)
+        idx = np.union1d(idx[~cuttable[idx]], cut_idx)
     if drawn_at is not None and idx.size:
         # a line drawn across a gap kinks at its ends, and a window that
         # holds one reads a kink of it anywhere: only measured windows are read
@@ -1732,8 +1733,7 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol, drawn_at=None):
     for i, k in enumerate(idx):
         lo, cut = k - w, None                              # where the stretch before begins
         if np.ptp(sp[max(0, k - 2 * w):min(n, k + w)]) > sp_tol:
-            if not (max(0, k - w - answer + 1) <= last[k] <= k - w // 2
-                    and np.ptp(sp[last[k]:k + w]) <= sp_tol):
+            if not (cuttable[k] and np.ptp(sp[last[k]:k + w]) <= sp_tol):
                 continue          # a set-point move moves every valve: it says nothing
             # the controller's answer to a step, where a sticky valve slips:
             # read over the window cut to begin after the kick's answer
