@@ -508,13 +508,13 @@ def test_a_levels_slips_in_its_answer_to_setpoint_steps_are_read(seed):
     assert e.found and e.kind == "stiction" and e.consistent == 4, e.reason
     assert e.after_step.all()
     np.testing.assert_allclose(e.index * h, 1000.0 + 1200.0 * np.arange(4), atol=60.0)
+    assert np.all(np.sign(e.size) == -np.sign(np.diff(sp)[np.flatnonzero(np.diff(sp))]))
     # two stretches pooled keep each kink's reading, in turn
     parts = [stick_slip_events(pv[a:b], op[a:b], h, process="integrating", sp=sp[a:b])
              for a, b in ((0, 2400), (2400, pv.size))]
     pooled = pooled_stick_slip_events(parts, record_s=pv.size * h)
     np.testing.assert_array_equal(pooled.after_step,
                                   np.concatenate([r.after_step for r in parts]))
-    assert np.all(np.sign(e.size) == -np.sign(np.diff(sp)[np.flatnonzero(np.diff(sp))]))
     # a valve that follows its OP answers the same steps with smooth turns
     pv, op, sp, h = _stepped_level(seed, stick=False)
     e = stick_slip_events(pv, op, h, process="integrating", sp=sp)

@@ -1613,6 +1613,14 @@ def controller_lag(pv, op, *, noise_only: bool = False,
     return i - max_lag, r
 
 
+def _kink_terms(t: np.ndarray, w: int):
+    """The terms a level's kink is read by, at times ``t`` [samples] from the
+    kink, over half-windows of ``w`` samples: the smooth ones (a line, a
+    parabola and a parabola starting at the kink), and the hinge."""
+    after = np.maximum(t, 0.0)
+    return np.c_[np.ones_like(t), t, t * t / w, after ** 2 / w], after
+
+
 @lru_cache(maxsize=16)
 def _kink_kernels(w: int):
     """Unit kernels over ``2 w`` samples (``t = -w .. w-1``) that read a kink at ``t = 0``.
@@ -1626,8 +1634,8 @@ def _kink_kernels(w: int):
     over that half-window is ``2 w bend @ y / bend_norm``.
     """
     t = np.arange(-w, w, dtype=float)
-    smooth, _ = np.linalg.qr(np.c_[np.ones_like(t), t, t * t / w, np.maximum(t, 0.0) ** 2 / w])
-    hinge = np.maximum(t, 0.0)
+    terms, hinge = _kink_terms(t, w)
+    smooth, _ = np.linalg.qr(terms)
     hinge = hinge - smooth @ (smooth.T @ hinge)
     kink_norm = float(np.linalg.norm(hinge))
     tb = t[:w]
@@ -1664,10 +1672,8 @@ def _stretch_bend(y, noise):
 def _cut_kink(y: np.ndarray, before: int, w: int, noise: float):
     """(slope step, its standard error) [PV unit/sample] of a hinge ``before``
     samples into ``y``, fitted by least squares with the terms of
-    :func:`_kink_kernels` (a line, a parabola, a change of curvature), or
-    None where they cannot be told apart."""
-    t = np.arange(y.size, dtype=float) - before
-    A = np.c_[np.ones_like(t), t, t * t / w, np.maximum(t, 0.0) ** 2 / w, np.maximum(t, 0.0)]
+    :func:`_kink_terms`, or None where they cannot be told apart."""
+    A = np.column_stack(_kink_terms(np.arange(y.size, dtype=float) - before, w))
     AtA = A.T @ A
     if np.linalg.cond(AtA) > 1e12:
         return None
