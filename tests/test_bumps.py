@@ -242,13 +242,16 @@ def test_op_across_a_kink_is_the_mean_after_less_the_mean_before():
                                   np.concatenate([r.op_across for r in parts]))
 
 
-@pytest.mark.parametrize("seed,index", [(1, 4), (16, 5), (14, 6), (24, 2)])
+@pytest.mark.parametrize("seed,index", [(1, 4), (16, 5), (14, 6)])
 def test_a_healthy_level_whose_kinks_its_op_made_is_not_called_sticky(seed, index):
     """Healthy levels of the realistic benchmark's generator (PI control, set-point
     steps, a wandering load with pump steps) whose kinks the reader takes for
     slips: the OP's change across each, through the valve's gain read at the
     set-point steps, makes most of the slope step the kink shows (the median
-    over the kinks reads 0.9-4.1 on these four)."""
+    over the kinks reads 0.9-1.5 on these three). A fourth, study seed 24
+    loop 2 (4.1), no longer reads a fault from its kinks alone (3 of 9 are
+    valve events, where 3 of 3 were): a kink after a stretch over which the
+    level held still while the OP crept says nothing of the valve."""
     from valvediag.analysis.bumps import SLIP_OVER_FOLLOWING
     from valvediag.analysis.signature import stick_slip_events
     from valvediag.synth.cases import benchmark_rng, draw_loop

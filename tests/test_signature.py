@@ -525,12 +525,15 @@ def test_a_levels_slips_in_its_answer_to_setpoint_steps_are_read(seed):
 
 def test_a_healthy_levels_answer_to_its_steps_kinks_it_but_is_not_called_sticky():
     """A healthy level of the realistic benchmark's generator (study seed 10,
-    loop 0: PI control, a 4 h snapshot at 5 s) exported as 30 s means reads
-    three kinks as slips: two over whole windows, one in its answer to a
-    set-point step. Its two steps cannot check them against a following
-    valve (three must answer to read its gain), and a kink in a step's
-    answer does not count towards the three that stand unchecked (the
-    version that first read such kinks called the level ``stiction``)."""
+    loop 0: PI control, a 4 h snapshot at 5 s) exported as 30 s means. The
+    version that first read kinks in a step's answer read three slips here,
+    one of them in its answer to a set-point step, and called the level
+    ``stiction``: its two steps cannot check them against a following valve
+    (three must answer to read its gain). A kink in a step's answer no
+    longer counts towards the three that stand unchecked; and since a kink
+    after a stretch over which the level held still says nothing, the
+    record reads two slips, both over whole windows: a snapshot's two kinks,
+    which stand only where the set-point steps check them."""
     from valvediag.synth.cases import benchmark_rng, draw_loop
 
     loop = draw_loop("level-healthy", benchmark_rng("level-healthy", 10, 0))
@@ -538,8 +541,7 @@ def test_a_healthy_levels_answer_to_its_steps_kinks_it_but_is_not_called_sticky(
     n = loop.pv.size // m * m
     pv, op, sp = (x[:n].reshape(-1, m).mean(axis=1) for x in (loop.pv, loop.op, loop.sp))
     e = stick_slip_events(pv, op, 30.0, process="integrating", sp=sp)
-    assert e.found and e.consistent >= MIN_SLIPS and e.after_step.any(), e.reason
-    assert e.consistent - np.count_nonzero(e.after_step) < MIN_SLIPS
+    assert e.found and e.consistent - np.count_nonzero(e.after_step) < MIN_SLIPS, e.reason
     d = classify_loop(pv, op, sp, sample_time=30.0, process_type="integrating",
                       pv_averaged=True)
     assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
@@ -723,6 +725,33 @@ def test_a_tight_level_loops_quick_turn_after_a_load_step_is_not_a_slip():
     e = stick_slip_events(pv, op, 5.0, process="integrating", sp=sp)
     assert not e.found and e.consistent < MIN_SLIPS, e.reason
     d = classify_loop(pv, op, sp, sample_time=5.0, process_type="integrating")
+    assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
+
+
+@pytest.mark.parametrize("ti", [120.0, 360.0])
+def test_a_level_held_still_while_its_op_crept_after_a_ramping_load_is_not_a_slip(ti):
+    """A healthy level under tight PI control (Kc 3, tau 120 s) whose inflow
+    ramps up and down by 1 % (a triangle of 40 minutes): along each ramp the
+    valve follows the OP, which creeps by integral action against the load,
+    and the level holds still at an offset; where the load turns, the
+    level's slope steps the way the OP had crept within the loop's quick
+    answer, as a slip's would. Before the level's slope over the stretch
+    was asked to stand off nought, 16 and 4 such turns read as slips (Ti 120
+    and 360 s) and the scan said ``stiction``; now 0 of 7 and 2 of 2, too
+    few for a day's record. A sticky valve's kinks are still read
+    (:func:`test_a_levels_staircase_of_slips_is_read_from_its_kinks` and the
+    tests after it): a valve stuck off the load's flow runs the level at a
+    slope."""
+    from valvediag.synth.cases import _wave
+
+    h, n = 2.0, int(6 * 3600 / 2.0)
+    load = _wave("triangle", np.arange(n) * h, 2400.0, 0.0)
+    sim = simulate_loop(process="integrating", valve="linear", sample_time=h, n_samples=n,
+                        kc=3.0, ti=ti, tau=120.0, sp=50.0, load=30.0, load_profile=load,
+                        noise_std=0.03, seed=5)
+    e = stick_slip_events(sim.pv, sim.op, h, process="integrating", sp=sim.sp)
+    assert not e.found and e.consistent < MIN_SLIPS, e.reason
+    d = classify_loop(sim.pv, sim.op, sim.sp, sample_time=h, process_type="integrating")
     assert d.verdict not in ("stiction", "backlash", "undecided"), d.reason
 
 

@@ -1029,6 +1029,14 @@ KINK_TRAVEL_Z = 4.0
 #: a level after a quick move of its OP (a settled loop's answer to a load's
 #: step), so such a kink says nothing of the valve.
 KINK_BURST_STILL = 0.1
+#: The level's slope over the stretch before a kink (since the last kink, or
+#: the half-window) must stand this many standard errors from nought: a
+#: valve stuck off the load's flow runs the level at the slope of the
+#: mismatch, while a level that held still as the OP crept shows no stuck
+#: valve (a valve that follows its OP against a load that ramps with it
+#: holds the level still at an offset, and the OP creeps by integral action
+#: alone).
+KINK_RAN_Z = 3.0
 #: Share of the half-window after a set-point step that a level's kink,
 #: read over a window cut to begin after the step, leaves to the loop's
 #: answer to the step's kick (the valve moved by the kick, the level turning
@@ -1159,7 +1167,18 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
     moved only in the last, any valve that moves kinks the level after it
     (a settled loop's quick answer to a load's step), and the kink is not
     judged (a healthy level under a pump that starts and stops every half
-    hour read 48 of 48 such turns as slips before). Over
+    hour read 48 of 48 such turns as slips before). Nor is a kink after a
+    stretch (since the last kink, or the half-window) over which the
+    level's fitted slope lies within :data:`KINK_RAN_Z` standard errors of
+    nought: a valve stuck off the load's flow runs the level at the slope
+    of the mismatch, but a valve that follows the OP against an inflow that
+    ramps with it holds the level still at an offset while the OP creeps by
+    integral action, and where the inflow turns, the slope steps the way
+    the OP crept, as after a slip (a healthy level under tight PI control,
+    tau 120 s, and an inflow that ramps up and down every 40 minutes read
+    16 of 16 such turns as slips before). It costs the slips of a valve
+    that stuck where its flow matched the load's, which the record cannot
+    tell from that. Over
     the stretch since the last kink (or the half-window), a valve that
     followed the OP would have bent the level by about the whole step and one
     that held not at all; where a parabola fitted to that stretch does not
@@ -1669,6 +1688,14 @@ def _stretch_bend(y, noise):
             2.0 * m * noise * math.sqrt(float(curvature[0])))
 
 
+def _stretch_slope(y, noise):
+    """(slope across ``y``, its standard error) from a line fitted by least
+    squares [PV unit/sample]; ``y`` holds at least 8 samples."""
+    t = np.arange(y.size, dtype=float) - (y.size - 1) / 2.0
+    tt = float(t @ t)
+    return float(t @ y) / tt, noise / math.sqrt(tt)
+
+
 def _cut_kink(y: np.ndarray, before: int, w: int, noise: float):
     """(slope step, its standard error) [PV unit/sample] of a hinge ``before``
     samples into ``y``, fitted by least squares with the terms of
@@ -1772,9 +1799,16 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol, drawn_at=None):
         # cut window's stretch is read whole: the kinks near the step read
         # its kick)
         before = others[(others < k - gap) & (others >= k - w)] if cut is None else others[:0]
-        bent = _stretch_bend(y[int(before[-1]) + gap if before.size else lo:k],
-                             noise * spread[k])
+        stretch = y[int(before[-1]) + gap if before.size else lo:k]
+        bent = _stretch_bend(stretch, noise * spread[k])
         if bent is None or bent[1] > KINK_HELD / 2.0 * abs(d):
+            judged[i] = False
+            continue
+        # a level that held still while the OP crept says nothing of the
+        # valve: one that follows the OP against a load ramping with it
+        # holds it so, and a stuck valve runs it at its mismatch's slope
+        ran = _stretch_slope(stretch, noise * spread[k])
+        if abs(ran[0]) < KINK_RAN_Z * ran[1]:
             judged[i] = False
             continue
         held = held and bent[0] * np.sign(d) <= KINK_HELD * abs(d)
