@@ -1029,13 +1029,13 @@ KINK_TRAVEL_Z = 4.0
 #: a level after a quick move of its OP (a settled loop's answer to a load's
 #: step), so such a kink says nothing of the valve.
 KINK_BURST_STILL = 0.1
-#: The level's slope over the stretch before a kink (since the last kink, or
-#: the half-window) must stand this many standard errors from nought: a
-#: valve stuck off the load's flow runs the level at the slope of the
-#: mismatch, while a level that held still as the OP crept shows no stuck
-#: valve (a valve that follows its OP against a load that ramps with it
-#: holds the level still at an offset, and the OP creeps by integral action
-#: alone).
+#: The level's mean slope over the stretch before a kink (since the last
+#: kink, or the half-window; the parabola that reads its bend) must stand
+#: this many standard errors from nought: a valve stuck off the load's flow
+#: runs the level at the slope of the mismatch, while a level that held
+#: still as the OP crept shows no stuck valve (a valve that follows its OP
+#: against a load that ramps with it holds the level still at an offset,
+#: and the OP creeps by integral action alone).
 KINK_RAN_Z = 3.0
 #: Share of the half-window after a set-point step that a level's kink,
 #: read over a window cut to begin after the step, leaves to the loop's
@@ -1169,7 +1169,7 @@ def stick_slip_events(pv, op, sample_time: float, *, process: str, sp=None,
     judged (a healthy level under a pump that starts and stops every half
     hour read 48 of 48 such turns as slips before). Nor is a kink after a
     stretch (since the last kink, or the half-window) over which the
-    level's fitted slope lies within :data:`KINK_RAN_Z` standard errors of
+    level's mean slope lies within :data:`KINK_RAN_Z` standard errors of
     nought: a valve stuck off the load's flow runs the level at the slope
     of the mismatch, but a valve that follows the OP against an inflow that
     ramps with it holds the level still at an offset while the OP creeps by
@@ -1676,24 +1676,18 @@ def _window_corr(y: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 
 def _stretch_bend(y, noise):
-    """(slope change across ``y``, its standard error) from a parabola fitted by
-    least squares [PV unit/sample], or None for fewer than 8 samples."""
+    """A parabola fitted to ``y`` by least squares: (slope change across ``y``,
+    its standard error, mean slope, its standard error) [PV unit/sample], or
+    None for fewer than 8 samples."""
     m = y.size
     if m < 8:
         return None
     t = np.arange(m, dtype=float) - (m - 1) / 2.0
     X = np.c_[t * t, t, np.ones(m)]
-    curvature = np.linalg.inv(X.T @ X)[0]          # the row of (X'X)^-1 that reads t^2
-    return (2.0 * m * float(curvature @ (X.T @ y)),
-            2.0 * m * noise * math.sqrt(float(curvature[0])))
-
-
-def _stretch_slope(y, noise):
-    """(slope across ``y``, its standard error) from a line fitted by least
-    squares [PV unit/sample]; ``y`` holds at least 8 samples."""
-    t = np.arange(y.size, dtype=float) - (y.size - 1) / 2.0
-    tt = float(t @ t)
-    return float(t @ y) / tt, noise / math.sqrt(tt)
+    inv = np.linalg.inv(X.T @ X)                   # rows read t^2 and t (t is centred)
+    coef = inv[:2] @ (X.T @ y)
+    return (2.0 * m * float(coef[0]), 2.0 * m * noise * math.sqrt(float(inv[0, 0])),
+            float(coef[1]), noise * math.sqrt(float(inv[1, 1])))
 
 
 def _cut_kink(y: np.ndarray, before: int, w: int, noise: float):
@@ -1799,16 +1793,15 @@ def _level_kinks(pv, op, sp, w, noise, op_noise, sense, sp_tol, drawn_at=None):
         # cut window's stretch is read whole: the kinks near the step read
         # its kick)
         before = others[(others < k - gap) & (others >= k - w)] if cut is None else others[:0]
-        stretch = y[int(before[-1]) + gap if before.size else lo:k]
-        bent = _stretch_bend(stretch, noise * spread[k])
+        bent = _stretch_bend(y[int(before[-1]) + gap if before.size else lo:k],
+                             noise * spread[k])
         if bent is None or bent[1] > KINK_HELD / 2.0 * abs(d):
             judged[i] = False
             continue
         # a level that held still while the OP crept says nothing of the
         # valve: one that follows the OP against a load ramping with it
         # holds it so, and a stuck valve runs it at its mismatch's slope
-        ran = _stretch_slope(stretch, noise * spread[k])
-        if abs(ran[0]) < KINK_RAN_Z * ran[1]:
+        if abs(bent[2]) < KINK_RAN_Z * bent[3]:
             judged[i] = False
             continue
         held = held and bent[0] * np.sign(d) <= KINK_HELD * abs(d)
