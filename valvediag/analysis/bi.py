@@ -854,9 +854,9 @@ def backlash_index(pv, sample_time=None, *, time=None, method: str = "robust",
     A loose valve rounds the PV's turn only for as long as it follows the OP
     between taking up its band and the OP's next reversal, and under a high
     controller gain that is short: the OP races across the band, the valve
-    with it, and the turn is nearly as sharp as a slip's. Simulated without a lag (a
-    level, tau 300 s, PI, a dead band of 3 %, 2 s samples), the robust BI
-    read 2.5-17 (backlash) for Kc 0.3-1 and Ti 0.5-8 tau, but 1.1-2.2
+    with it, and the turn is nearly as sharp as a slip's. Simulated without
+    a lag (a level, tau 300 s, PI, a dead band of 3 %, 2 s samples), the
+    robust BI read 2.5-17 (backlash) for Kc 0.3-1 and Ti 0.5-8 tau, but 1.1-2.2
     (stiction) for Kc 2 and Ti 8-16 tau, Kc 4 and Ti 4-8 tau, and Kc 8 and
     Ti 8 tau. There the index names the fault but not its kind; the
     realistic benchmark's loose level cycles are drawn where it does (Kc
