@@ -429,7 +429,13 @@ def move_onset(error, sample_time: float, period: float, apex_idx, apex_sign,
     0.88-1.85 under clipped sines (5) and 0.30-0.53 under square waves (3).
     Over a tenth of a period rather than a sixth, a sticky flow behind a lag
     of a twentieth of its period (one of the further study seeds 17-26) read
-    0.93.
+    0.93. Over more draws (development seeds 1-2 at 20 loops a class, study
+    seeds 10-26 at 4), the sticky flow cycles (107) read 0.00-0.58, six of
+    them above 0.44 (five with a compressed PV), and the sticky temperature
+    cycles (106) 0.00-0.48. Six triangular loads on temperature loops whose
+    PV was stored by exception read 0.52-0.82: the scan's limit
+    (:data:`~valvediag.analysis.classify.ONSET_SMOOTH`, 0.7) leaves the two
+    lowest to the valve signature, which reads them as sticky valves.
 
     It fails where a lag between valve and PV as long as a tenth of the
     period or more (a slow sensor, a mixing volume) rounds a slip's start,
