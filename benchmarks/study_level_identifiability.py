@@ -86,6 +86,7 @@ import numpy as np
 from scipy import linalg, signal
 
 from valvediag.analysis.quality import white_noise_std
+from valvediag.analysis.signature import held_delay
 from valvediag.models.valves import kano
 from valvediag.synth.cases import benchmark_rng, draw_loop
 
@@ -143,8 +144,7 @@ def best_loglik(pv: np.ndarray, U: np.ndarray, noise: float) -> tuple[np.ndarray
     for lag in LAGS:
         UL = lagged(U, lag)
         for d in DEADS:
-            shifted[lag, d] = np.concatenate([np.repeat(UL[:, :1], d, axis=1),
-                                              UL[:, :n - d]], axis=1) if d else UL
+            shifted[lag, d] = held_delay(UL, d)
     for r in LOAD_R:
         b_pv, b_u, a, s = innovation_filters(r)
         e_pv = signal.lfilter(b_pv, a, pv - pv[0])[SKIP:]
